@@ -1,0 +1,240 @@
+"""Collision checking for the arm against itself and the current ManiSkill scene (FCL through mplib).
+
+The obstacles are read from the simulator's own collision shapes (boxes, spheres, capsules, cylinders,
+convex and triangle meshes, planes) at their current poses, never copied by hand, so a plan checked here
+is checked against the scene the simulator steps. Everything is expressed in the robot base frame.
+
+Example:
+    >>> world = CollisionWorld(panda_spec(), base_pose=env.agent.robot.pose.raw_pose[0].numpy())
+    >>> world.sync_scene(env.scene, ignore={"cube"})   # the object being approached may be touched
+    >>> world.is_valid(q)                                # no self- and no scene collision at q
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Collection, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+import sapien
+
+from maniskill_pnp.planning.robot import ArmSpec
+
+# A PhysX capsule or cylinder lies along its local x axis; FCL's lie along z. This turns z onto x.
+_Z_TO_X = sapien.Pose(q=[np.sqrt(0.5), 0.0, np.sqrt(0.5), 0.0])
+# Half-thickness of the slab that stands in for an infinite plane (FCL's plane-vs-mesh support is patchy).
+_PLANE_SLAB_HALF = np.array([0.5, 20.0, 20.0])
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """One collision shape of the scene, in the robot base frame.
+
+    Attributes:
+        actor: Name of the ManiSkill actor the shape belongs to.
+        kind: Shape kind (``box``, ``sphere``, ``capsule``, ``cylinder``, ``convex``, ``mesh``, ``plane``).
+        pose: Pose of the shape in the robot base frame (x, y, z, qw, qx, qy, qz).
+        signature: Size parameters that identify the geometry (used for the scene fingerprint).
+    """
+
+    actor: str
+    kind: str
+    pose: np.ndarray
+    signature: tuple[float, ...]
+
+
+class CollisionWorld:
+    """FCL collision world of one arm and the obstacles of one ManiSkill sub-scene.
+
+    Args:
+        arm: The arm's description (URDF/SRDF, TCP link, limits).
+        base_pose: Pose of the robot base in the world frame (x, y, z, qw, qx, qy, qz).
+    """
+
+    def __init__(self, arm: ArmSpec, base_pose: np.ndarray | None = None):
+        import mplib  # mplib segfaults with numpy 2; the package pins numpy<2
+
+        self.arm = arm
+        self._planner = mplib.Planner(urdf=str(arm.urdf), srdf=str(arm.srdf), move_group=arm.tcp_link)
+        self._world = self._planner.planning_world
+        self._robot = self._planner.robot
+        self._fcl = mplib.pymp.collision_detection.fcl
+        self._finger_qpos = np.full(len(self._planner.user_joint_names) - arm.arm_joints, arm.gripper_open)
+        self.base_pose = sapien.Pose() if base_pose is None else _pose(base_pose)
+        self._base_inv = self.base_pose.inv()
+        self.obstacles: dict[str, list[Obstacle]] = {}
+        self._attached = False
+        self._fixed_links = frozenset({self._planner.user_link_names[0]})
+
+    # ------------------------------------------------------------------ scene
+    def sync_scene(self, scene, *, ignore: Collection[str] = (), env_idx: int = 0, skip: Collection[str] = ()) -> None:
+        """Replace the obstacles by the collision shapes of every actor in ``scene`` (a ManiSkillScene).
+
+        Args:
+            scene: The ManiSkill scene (``env.unwrapped.scene``).
+            ignore: Actor names to leave out: the object being approached or held.
+            env_idx: Which parallel sub-scene to read.
+            skip: Further actor names that are never obstacles (e.g. visual-only markers).
+        """
+        for name in list(self.obstacles):
+            for i, _ in enumerate(self.obstacles[name]):
+                self._world.remove_normal_object(f"{name}#{i}")
+        self.obstacles = {}
+        for name, actor in scene.actors.items():
+            if name in ignore or name in skip:
+                continue
+            for ob, shape in self._actor_obstacles(name, actor, env_idx):
+                i = len(self.obstacles.setdefault(name, []))
+                self.obstacles[name].append(ob)
+                self._world.set_normal_object(f"{name}#{i}", self._fcl_object(ob, shape))
+
+    def _actor_obstacles(self, name: str, actor, env_idx: int) -> Iterable[tuple[Obstacle, object]]:
+        entity = actor._objs[env_idx]
+        body = entity.find_component_by_type(sapien.physx.PhysxRigidBaseComponent)
+        if body is None:
+            return
+        actor_pose = _pose(actor.pose.raw_pose[env_idx].cpu().numpy())
+        for shape in body.collision_shapes:
+            world = actor_pose * shape.local_pose
+            kind, signature = _shape_signature(shape)
+            if kind in ("capsule", "cylinder"):
+                world = world * _Z_TO_X
+            elif kind == "plane":
+                world = world * sapien.Pose(p=[-_PLANE_SLAB_HALF[0], 0.0, 0.0])
+            local = self._base_inv * world
+            yield Obstacle(name, kind, np.concatenate([local.p, local.q]), signature), shape
+
+    def _fcl_object(self, ob: Obstacle, shape):
+        fcl = self._fcl
+        if ob.kind == "box":
+            geom = fcl.Box(*(2 * np.asarray(shape.half_size, dtype=np.float64)))
+        elif ob.kind == "sphere":
+            geom = fcl.Sphere(float(shape.radius))
+        elif ob.kind == "capsule":
+            geom = fcl.Capsule(float(shape.radius), 2 * float(shape.half_length))
+        elif ob.kind == "cylinder":
+            geom = fcl.Cylinder(float(shape.radius), 2 * float(shape.half_length))
+        elif ob.kind == "plane":
+            geom = fcl.Box(*(2 * _PLANE_SLAB_HALF))
+        elif ob.kind == "convex":
+            verts = np.asarray(shape.vertices, dtype=np.float64) * np.asarray(shape.scale, dtype=np.float64)
+            geom = fcl.Convex(verts, np.asarray(shape.triangles, dtype=np.int32))
+        else:  # triangle mesh
+            verts = np.asarray(shape.vertices, dtype=np.float64) * np.asarray(shape.scale, dtype=np.float64)
+            geom = fcl.BVHModel()
+            geom.beginModel()
+            geom.addSubModel(verts, np.asarray(shape.triangles, dtype=np.int32))
+            geom.endModel()
+        return fcl.CollisionObject(geom, ob.pose[:3], ob.pose[3:])
+
+    def fingerprint(self, decimals: int = 3) -> str:
+        """A short hash of every obstacle's kind, size and pose (rounded): equal iff the scene is the same."""
+        h = hashlib.sha1()
+        for name in sorted(self.obstacles):
+            for ob in self.obstacles[name]:
+                h.update(name.encode())
+                h.update(ob.kind.encode())
+                h.update(np.round(np.asarray(ob.signature), decimals).tobytes())
+                h.update(np.round(ob.pose, decimals).tobytes())
+        h.update(b"attached" if self._attached else b"-")
+        return h.hexdigest()[:16]
+
+    # ------------------------------------------------------------------ held objects
+    def attach_box(self, half_size: np.ndarray, pose_in_tcp: np.ndarray) -> None:
+        """Treat a box held by the gripper as part of the arm (pose relative to the TCP link)."""
+        self._planner.update_attached_box(2 * np.asarray(half_size, dtype=np.float64), np.asarray(pose_in_tcp, np.float64))
+        self._world.set_use_attach(True)
+        self._attached = True
+
+    def detach(self) -> None:
+        """Forget the held object."""
+        if self._attached:
+            self._world.remove_attach()
+            self._world.set_use_attach(False)
+            self._attached = False
+
+    def set_fingers(self, finger_qpos: float) -> None:
+        """Set the finger opening used for collision checks (per finger, m)."""
+        self._finger_qpos[:] = finger_qpos
+
+    # ------------------------------------------------------------------ queries
+    def _set(self, q: np.ndarray) -> None:
+        self._robot.set_qpos(np.concatenate([np.asarray(q, dtype=np.float64), self._finger_qpos]), True)
+
+    def collisions(self, q: np.ndarray) -> list[tuple[str, str]]:
+        """Colliding pairs at arm configuration ``q``: (robot link, other link or obstacle name)."""
+        self._set(q)
+        pairs = []
+        for res in self._world.collide_full():
+            if res.link_name1 in self._fixed_links:
+                continue
+            other = res.link_name2 if res.collision_type == "self" else res.link_name2 or res.object_name2
+            pairs.append((res.link_name1, (other or "").split("#")[0] or res.object_name2))
+        return pairs
+
+    def is_valid(self, q: np.ndarray) -> bool:
+        """True when ``q`` is within the joint limits and collides with neither the arm itself nor the scene."""
+        if not self.arm.within_limits(q):
+            return False
+        self._set(q)
+        if not self._world.collide():
+            return True
+        # The base link is mounted on the table: its touching the table is not a collision.
+        return all(res.link_name1 in self._fixed_links for res in self._world.collide_full())
+
+    def segment_valid(self, q0: np.ndarray, q1: np.ndarray, resolution: float = 0.005) -> bool:
+        """True when every configuration on the straight joint-space segment q0→q1 is valid.
+
+        ``resolution`` is the largest joint-space step (rad, max norm) between checked configurations.
+        """
+        n = max(1, int(np.ceil(np.max(np.abs(q1 - q0)) / resolution)))
+        return all(self.is_valid(q0 + (q1 - q0) * t) for t in np.linspace(0.0, 1.0, n + 1))
+
+    def path_valid(self, path: np.ndarray, resolution: float = 0.005) -> bool:
+        """True when every segment of a waypoint path (N×dof) is valid."""
+        return all(self.segment_valid(a, b, resolution) for a, b in zip(path[:-1], path[1:]))
+
+    # ------------------------------------------------------------------ kinematics (mplib's pinocchio model)
+    @property
+    def mplib_planner(self):
+        """The underlying ``mplib.Planner`` (its pinocchio model does IK and FK, its TOPP time-parameterizes)."""
+        return self._planner
+
+    def world_to_base(self, pose: np.ndarray | sapien.Pose) -> sapien.Pose:
+        """A world-frame pose expressed in the robot base frame."""
+        return self._base_inv * _pose(pose)
+
+    def base_to_world(self, pose: np.ndarray | sapien.Pose) -> sapien.Pose:
+        """A base-frame pose expressed in the world frame."""
+        return self.base_pose * _pose(pose)
+
+
+def _pose(p: np.ndarray | sapien.Pose) -> sapien.Pose:
+    if isinstance(p, sapien.Pose):
+        return p
+    p = np.asarray(p, dtype=np.float64).reshape(-1)
+    if p.shape != (7,):
+        raise ValueError(f"a pose is 7 numbers (x, y, z, qw, qx, qy, qz), got shape {p.shape}")
+    return sapien.Pose(p=p[:3], q=p[3:])
+
+
+def _shape_signature(shape) -> tuple[str, tuple[float, ...]]:
+    physx = sapien.physx
+    if isinstance(shape, physx.PhysxCollisionShapeBox):
+        return "box", tuple(np.asarray(shape.half_size, dtype=float))
+    if isinstance(shape, physx.PhysxCollisionShapeSphere):
+        return "sphere", (float(shape.radius),)
+    if isinstance(shape, physx.PhysxCollisionShapeCapsule):
+        return "capsule", (float(shape.radius), float(shape.half_length))
+    if isinstance(shape, physx.PhysxCollisionShapeCylinder):
+        return "cylinder", (float(shape.radius), float(shape.half_length))
+    if isinstance(shape, physx.PhysxCollisionShapeConvexMesh):
+        v = np.asarray(shape.vertices) * np.asarray(shape.scale)
+        return "convex", (len(v), *v.min(0), *v.max(0))
+    if isinstance(shape, physx.PhysxCollisionShapeTriangleMesh):
+        v = np.asarray(shape.vertices) * np.asarray(shape.scale)
+        return "mesh", (len(v), *v.min(0), *v.max(0))
+    if isinstance(shape, physx.PhysxCollisionShapePlane):
+        return "plane", ()
+    raise TypeError(f"unsupported PhysX collision shape {type(shape).__name__}")

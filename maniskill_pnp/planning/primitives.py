@@ -1,0 +1,382 @@
+"""Motion primitives of the pick-and-place robot: pick, place and slide, planned and executed.
+
+Each primitive plans with OMPL (free-space motions), chained IK (straight segments), checks the result in
+the simulator (finger gap and lift for a grasp, landing inside the bin for a place, object displacement for a
+slide) and returns a :class:`PrimitiveResult`: ``ok``, the stage that failed and why. A planning failure is a
+result, never an exception, so one bad action never kills an episode.
+
+Example:
+    >>> prims = MotionPrimitives(env)                      # env: a ManiSkill env in pd_joint_pos mode
+    >>> res = prims.pick(grasp_pose(cube_xyz, yaw=0.3), target="cube")
+    >>> res.ok, res.stage, res.reason
+    >>> prims.place(PlaceRegion(center=bin_xyz, half_size=(0.1, 0.1, 0.05)), target="cube")
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Collection
+from dataclasses import dataclass, field
+
+import numpy as np
+import sapien
+import torch
+
+from maniskill_pnp.planning.collision import CollisionWorld
+from maniskill_pnp.planning.executor import SimExecutor
+from maniskill_pnp.planning.kinematics import Kinematics, quat_angle
+from maniskill_pnp.planning.robot import ArmSpec, panda_spec
+from maniskill_pnp.planning.rrt import JointSpacePlanner, PlanCache
+from maniskill_pnp.planning.trajectory import time_parameterize
+
+# The TCP frame of ManiSkill's Panda points its z axis out of the fingers; a top-down grasp turns it to -z.
+_TOP_DOWN = sapien.Pose(q=[0.0, 1.0, 0.0, 0.0])
+
+
+def grasp_pose(position: np.ndarray, yaw: float) -> sapien.Pose:
+    """Top-down parallel-jaw TCP pose at ``position`` (world, m) with the jaws closing across ``yaw`` (rad).
+
+    ``yaw`` is the angle of the closing direction (the line between the fingers) from the world x axis.
+    """
+    # The TCP's y axis is the closing direction; after the top-down flip it points along -y, so turn by yaw + 90°.
+    a = yaw + np.pi / 2
+    turn = sapien.Pose(q=[np.cos(a / 2), 0.0, 0.0, np.sin(a / 2)])
+    return sapien.Pose(p=np.asarray(position, dtype=np.float64)) * turn * _TOP_DOWN
+
+
+@dataclass(frozen=True)
+class PlaceRegion:
+    """An axis-aligned box region where placed objects must come to rest (e.g. the inside of a bin).
+
+    Attributes:
+        center: Centre of the region's floor (world, m).
+        half_size: Half extents (x, y, z) of the region above its floor (m).
+        drop_height: Height above the floor at which the object is released (m).
+    """
+
+    center: tuple[float, float, float]
+    half_size: tuple[float, float, float]
+    drop_height: float = 0.15
+
+    def contains(self, point: np.ndarray, margin: float = 0.0) -> bool:
+        """True when ``point`` lies inside the region (grown by ``margin``)."""
+        d = np.abs(np.asarray(point)[:2] - np.asarray(self.center)[:2])
+        z = float(point[2]) - float(self.center[2])
+        return bool(np.all(d <= np.asarray(self.half_size[:2]) + margin) and -margin <= z <= 2 * self.half_size[2] + margin)
+
+
+@dataclass
+class PrimitiveResult:
+    """What a primitive did.
+
+    Attributes:
+        ok: True when every stage succeeded (and the sensed outcome matched).
+        stage: The stage that failed, or ``"done"``.
+        reason: Why it failed ("" when ok).
+        grasped: A grasp was sensed (fingers stopped on an object and the object came up).
+        placed: The object came to rest inside the place region.
+        moved: Displacement (m) of the pushed object by a slide, when a target was named.
+        held: Name of the object in the gripper after the primitive, if any.
+        planning_time: Seconds spent in IK, RRT-Connect and time parameterization.
+        sim_steps: Physics steps executed.
+        stages: Per-stage log: (stage name, ok, detail).
+    """
+
+    ok: bool = False
+    stage: str = ""
+    reason: str = ""
+    grasped: bool = False
+    placed: bool = False
+    moved: float = 0.0
+    held: str | None = None
+    planning_time: float = 0.0
+    sim_steps: int = 0
+    stages: list[tuple[str, bool, str]] = field(default_factory=list)
+
+
+class _StageFailed(Exception):
+    def __init__(self, stage: str, reason: str):
+        super().__init__(f"{stage}: {reason}")
+        self.stage, self.reason = stage, reason
+
+
+class MotionPrimitives:
+    """Pick, place and slide for the Panda of a ManiSkill env.
+
+    Args:
+        env: ManiSkill env (``control_mode="pd_joint_pos"``, one sub-scene).
+        arm: The arm description (ManiSkill's Panda by default).
+        static_actors: Names of actors that never move (table, bin, belt...). Everything else with a collision
+            shape counts as a movable object.
+        non_obstacles: Actor names never treated as obstacles (e.g. visual goal markers).
+        time_budget: Seconds RRT-Connect may search per free-space motion.
+        cache: Plan cache shared across calls (a fresh one by default).
+        seed: Seed of IK restarts and OMPL.
+        on_control_step: Callback after every control step (video recording).
+    """
+
+    #: Height of the pre-grasp pose above the grasp (m).
+    PREGRASP_HEIGHT = 0.10
+    #: Height the object is lifted after closing (m).
+    LIFT_HEIGHT = 0.15
+    #: Fingers closer than this (m, per finger) mean the jaws closed on nothing.
+    EMPTY_GAP = 0.002
+    #: An object counts as lifted when it rose at least this much (m).
+    LIFTED = 0.05
+    #: Control steps given to the gripper to close or open.
+    GRIPPER_STEPS = 12
+
+    def __init__(
+        self,
+        env,
+        *,
+        arm: ArmSpec | None = None,
+        static_actors: Collection[str] = (),
+        non_obstacles: Collection[str] = ("goal_site",),
+        time_budget: float = 2.0,
+        cache: PlanCache | None = None,
+        seed: int = 0,
+        on_control_step=None,
+    ):
+        self.env = env.unwrapped
+        self.arm = arm or panda_spec()
+        self.executor = SimExecutor(env, self.arm, on_control_step)
+        base = self.env.agent.robot.pose.raw_pose[0].cpu().numpy()
+        self.world = CollisionWorld(self.arm, base_pose=base)
+        self.kin = Kinematics(self.world, seed=seed)
+        self.planner = JointSpacePlanner(self.world, time_budget=time_budget, cache=cache or PlanCache(), seed=seed)
+        self.static_actors = frozenset(static_actors)
+        self.non_obstacles = frozenset(non_obstacles)
+        self.home = self.arm.home.copy()
+        self._planning_time = 0.0
+        self.held: str | None = None
+
+    # ================================================================== primitives
+    def pick(self, pose: sapien.Pose, target: str | None = None, *, candidates: Collection[str] | None = None) -> PrimitiveResult:
+        """Pre-grasp above ``pose``, straight descent, close the jaws, lift.
+
+        Args:
+            pose: Grasp TCP pose (world); see :func:`grasp_pose`. Its 180° twin about the vertical is
+                equivalent for parallel jaws; the one nearer the current configuration is used.
+            target: Name of the object to grasp when known (it may be touched during the descent). When None,
+                the descent may touch any movable object and the grasped object is found from finger contacts.
+            candidates: Objects that can be grasped, for finding the held one (default: every movable object).
+
+        Returns:
+            ``grasped`` is the jaw sensor: fingers stopped short of closing and the object came up.
+        """
+        return self._run(self._pick, pose, target, candidates)
+
+    def place(self, region: PlaceRegion, target: str | None = None) -> PrimitiveResult:
+        """Carry the held object above ``region``, release it, and check it came to rest inside."""
+        return self._run(self._place, region, target)
+
+    def slide(self, start: np.ndarray, direction: np.ndarray, length: float = 0.08, *, target: str | None = None) -> PrimitiveResult:
+        """Lower the closed gripper tip at ``start`` and push it ``length`` m along ``direction`` (horizontal).
+
+        Args:
+            start: Where the fingertips go down (world, m); its z is the tip height during the push.
+            direction: Push direction in the table plane (x, y), any length.
+            length: Push length (m); the thesis uses 8 cm.
+            target: An object whose displacement is reported in ``moved``.
+        """
+        return self._run(self._slide, np.asarray(start, np.float64), np.asarray(direction, np.float64), float(length), target)
+
+    def move_to(self, q_goal: np.ndarray) -> PrimitiveResult:
+        """Plan (RRT-Connect, every object an obstacle, a held one carried along) and move to arm joints ``q_goal``."""
+        return self._run(self._move_free, np.asarray(q_goal, dtype=np.float64), "move")
+
+    def go_home(self) -> PrimitiveResult:
+        """Plan and move to the home configuration (above the workspace, out of the cameras' way)."""
+        return self._run(self._move_free, self.home, "go_home")
+
+    # ================================================================== stage logic
+    def _pick(self, res: PrimitiveResult, pose: sapien.Pose, target: str | None, candidates) -> None:
+        movable = self._movable()
+        if target is not None and target not in movable:
+            raise _StageFailed("input", f"unknown object {target!r}; movable objects: {sorted(movable)}")
+        self.executor.gripper(1.0, self.GRIPPER_STEPS if self._fingers_closed() else 0)
+        twins = [pose, pose * sapien.Pose(q=[0.0, 0.0, 0.0, 1.0])]
+        pre = [sapien.Pose(p=p.p + [0.0, 0.0, self.PREGRASP_HEIGHT], q=p.q) for p in twins]
+        # Free-space motion to the pre-grasp: every object is an obstacle.
+        self._sync()
+        ik = self._timed(self.kin.ik_any, pre, self.executor.qpos())
+        if not ik.ok:
+            raise _StageFailed("pregrasp_ik", ik.reason)
+        self._move_to(ik.q, "move_to_pregrasp", res)
+        # Straight descent: the target (or, when unknown, any movable object) may be touched.
+        self._sync(ignore={target} if target else movable)
+        fk = self.kin.fk(self.executor.qpos())
+        goal = min(twins, key=lambda p: quat_angle(p.q, fk.q))
+        self._straight(goal, "descend", res)
+        heights = self._object_heights(movable)
+        self.executor.gripper(-1.0, self.GRIPPER_STEPS)
+        fingers = self.executor.finger_qpos()
+        closed_on_something = bool(np.min(fingers) > self.EMPTY_GAP)
+        self._sync(ignore=movable)  # lift straight up through whatever is around the grasp
+        self.world.set_fingers(float(np.min(fingers)))
+        up = sapien.Pose(p=self.kin.fk(self.executor.qpos()).p + [0.0, 0.0, self.LIFT_HEIGHT], q=goal.q)
+        self._straight(up, "lift", res)
+        lifted = {n: h for n, h in self._object_heights(movable).items() if h - heights[n] > self.LIFTED}
+        fingers = self.executor.finger_qpos()
+        pool = set(candidates) if candidates is not None else movable
+        held = [n for n in lifted if n in pool]
+        if target is not None:
+            held = [n for n in held if n == target]
+        res.grasped = bool(np.min(fingers) > self.EMPTY_GAP) and closed_on_something and bool(held)
+        if not res.grasped:
+            why = "jaws closed on nothing" if not closed_on_something else "object slipped or was not lifted"
+            raise _StageFailed("grasp_check", why)
+        self.held = res.held = max(held, key=lambda n: lifted[n])
+
+    def _place(self, res: PrimitiveResult, region: PlaceRegion, target: str | None) -> None:
+        name = target or self.held
+        if name is None:
+            raise _StageFailed("input", "nothing is held: pick an object first or name the target")
+        if name not in self.env.scene.actors:
+            raise _StageFailed("input", f"unknown object {name!r}")
+        res.held = name
+        self._sync(ignore={name})
+        self._attach(name)
+        try:
+            drop = np.asarray(region.center, np.float64) + [0.0, 0.0, region.drop_height]
+            q_now = self.executor.qpos()
+            tcp = self.kin.fk(q_now)
+            yaw_turns = [sapien.Pose(q=[np.cos(a / 2), 0.0, 0.0, np.sin(a / 2)]) for a in (0.0, np.pi / 2, np.pi, -np.pi / 2)]
+            poses = [sapien.Pose(p=drop) * t * sapien.Pose(q=tcp.q) for t in yaw_turns]
+            ik = self._timed(self.kin.ik_any, poses, q_now)
+            if not ik.ok:
+                raise _StageFailed("place_ik", ik.reason)
+            self._move_to(ik.q, "carry", res)
+        finally:
+            self.world.detach()
+        self.executor.gripper(1.0, self.GRIPPER_STEPS)
+        self.held = None
+        self._wait_at_rest(name)
+        pos = self._actor_position(name)
+        res.placed = region.contains(pos, margin=0.01)
+        if not res.placed:
+            raise _StageFailed("place_check", f"object came to rest at {np.round(pos, 3).tolist()}, outside the place region")
+
+    def _slide(self, res: PrimitiveResult, start: np.ndarray, direction: np.ndarray, length: float, target: str | None) -> None:
+        d = np.array([direction[0], direction[1], 0.0])
+        if start.shape != (3,) or np.linalg.norm(d) < 1e-9 or not np.isfinite(start).all():
+            raise _StageFailed("input", "slide needs a finite 3-D start and a non-zero horizontal direction")
+        if not length > 0:
+            raise _StageFailed("input", f"slide length must be positive, got {length}")
+        d /= np.linalg.norm(d)
+        before = self._actor_position(target) if target else None
+        # Jaws closed, across the push direction so the closed fingers form a flat pusher.
+        yaw = float(np.arctan2(d[1], d[0])) + np.pi / 2
+        tip = grasp_pose(start, yaw)
+        self.executor.gripper(-1.0, self.GRIPPER_STEPS if not self._fingers_closed() else 0)
+        self.world.set_fingers(0.0)
+        self._sync()
+        above = sapien.Pose(p=start + [0.0, 0.0, self.PREGRASP_HEIGHT], q=tip.q)
+        ik = self._timed(self.kin.ik_any, [above, above * sapien.Pose(q=[0.0, 0.0, 0.0, 1.0])], self.executor.qpos())
+        if not ik.ok:
+            raise _StageFailed("preslide_ik", ik.reason)
+        self._move_to(ik.q, "move_to_preslide", res)
+        movable = self._movable()
+        self._sync(ignore=movable)  # the tip may come down on, and then push, any movable object
+        q_tcp = self.kin.fk(self.executor.qpos()).q
+        self._straight(sapien.Pose(p=start, q=q_tcp), "lower", res)
+        self._straight(sapien.Pose(p=start + length * d, q=q_tcp), "push", res)
+        self._straight(sapien.Pose(p=start + length * d + [0.0, 0.0, self.PREGRASP_HEIGHT], q=q_tcp), "retract", res)
+        if target:
+            after = self._actor_position(target)
+            res.moved = float(np.linalg.norm((after - before)[:2]))
+
+    def _move_free(self, res: PrimitiveResult, q_goal: np.ndarray, stage: str) -> None:
+        if q_goal.shape != (self.arm.arm_joints,) or not np.isfinite(q_goal).all():
+            raise _StageFailed("input", f"a configuration is {self.arm.arm_joints} finite joint values, got {q_goal}")
+        self._sync()
+        if self.held:
+            self._attach(self.held)
+        try:
+            self._move_to(q_goal, stage, res)
+        finally:
+            self.world.detach()
+
+    # ================================================================== helpers
+    def _run(self, fn, *args) -> PrimitiveResult:
+        res = PrimitiveResult()
+        steps0, self._planning_time = self.executor.sim_steps, 0.0
+        try:
+            fn(res, *args)
+            res.ok, res.stage = True, "done"
+        except _StageFailed as e:
+            res.ok, res.stage, res.reason = False, e.stage, e.reason
+            res.stages.append((e.stage, False, e.reason))
+        res.planning_time = self._planning_time
+        res.sim_steps = self.executor.sim_steps - steps0
+        if res.held is None and self.held is not None and fn != self._place:
+            res.held = self.held
+        return res
+
+    def _timed(self, fn, *args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            self._planning_time += time.perf_counter() - t0
+
+    def _move_to(self, q_goal: np.ndarray, stage: str, res: PrimitiveResult) -> None:
+        plan = self._timed(self.planner.plan, self.executor.qpos(), q_goal)
+        if not plan.ok:
+            raise _StageFailed(stage, plan.reason)
+        self._execute(plan.path, stage, res, "cached plan" if plan.cached else f"{len(plan.path)} waypoints")
+
+    def _straight(self, goal: sapien.Pose, stage: str, res: PrimitiveResult) -> None:
+        seg = self._timed(self.kin.straight_line, self.executor.qpos(), goal)
+        if not seg.ok:
+            raise _StageFailed(stage, seg.reason)
+        self._execute(seg.path, stage, res, f"{len(seg.path)} waypoints")
+
+    def _execute(self, path: np.ndarray, stage: str, res: PrimitiveResult, detail: str) -> None:
+        traj = self._timed(
+            time_parameterize, path, self.executor.dt, self.arm.max_velocity, self.arm.max_acceleration, self.world.mplib_planner
+        )
+        err = self.executor.follow(traj)
+        res.stages.append((stage, True, f"{detail}, {len(traj)} control steps, final error {err:.3f} rad"))
+
+    def _sync(self, ignore: Collection[str] = ()) -> None:
+        self.world.sync_scene(self.env.scene, ignore=set(ignore) | ({self.held} if self.held else set()), skip=self.non_obstacles)
+        self.world.set_fingers(float(np.min(self.executor.finger_qpos())))
+
+    def _attach(self, name: str) -> None:
+        """Add the held object's bounding box (in the TCP frame) to the arm for collision checks."""
+        mesh = self.env.scene.actors[name].get_first_collision_mesh(to_world_frame=True)
+        tcp = self.kin.fk(self.executor.qpos())
+        inv = tcp.inv().to_transformation_matrix()
+        v = np.asarray(mesh.vertices) @ inv[:3, :3].T + inv[:3, 3]
+        lo, hi = v.min(0), v.max(0)
+        self.world.attach_box((hi - lo) / 2 + 0.005, np.concatenate([(hi + lo) / 2, [1.0, 0.0, 0.0, 0.0]]))
+
+    def _movable(self) -> set[str]:
+        names = set()
+        for name, actor in self.env.scene.actors.items():
+            if name in self.static_actors or name in self.non_obstacles:
+                continue
+            if actor.px_body_type == "dynamic":
+                names.add(name)
+        return names
+
+    def _fingers_closed(self) -> bool:
+        return bool(np.max(self.executor.finger_qpos()) < self.arm.gripper_open - 0.005)
+
+    def _actor_position(self, name: str) -> np.ndarray:
+        return self.env.scene.actors[name].pose.p[0].cpu().numpy().astype(np.float64)
+
+    def _object_heights(self, names: Collection[str]) -> dict[str, float]:
+        return {n: float(self._actor_position(n)[2]) for n in names}
+
+    def _wait_at_rest(self, name: str, max_steps: int = 40) -> None:
+        actor = self.env.scene.actors[name]
+        hold = self.executor.qpos()
+        for _ in range(max_steps):
+            self.executor.step(hold)
+            speed = torch.linalg.norm(actor.linear_velocity[0]).item()
+            if speed < 0.01:
+                break
+

@@ -1,0 +1,92 @@
+"""The robot the planners know about: ManiSkill's Panda, described from the assets ManiSkill ships.
+
+Everything here is read from ManiSkill's own agent (URDF/SRDF paths, joint limits, controller ranges), so
+the planner and the simulator agree on one model of the arm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    """Kinematic and gripper facts of a parallel-jaw arm, as the planning layer needs them.
+
+    Attributes:
+        urdf: Path of the robot URDF (collision meshes are resolved relative to it).
+        srdf: Path of the SRDF listing link pairs that never collide (for self-collision filtering).
+        tcp_link: Link whose pose a grasp pose specifies (the point between the fingertips).
+        arm_joints: Number of actuated arm joints (planning dimension).
+        lower: Lower joint limits of the arm joints (rad).
+        upper: Upper joint limits of the arm joints (rad).
+        gripper_open: Finger joint position when open (m, per finger).
+        gripper_closed: Finger joint position commanded to close (m, per finger; may be below 0 to squeeze).
+        home: A collision-free rest configuration of the arm joints, above the workspace.
+        max_velocity: Joint velocity limit used for time parameterization (rad/s).
+        max_acceleration: Joint acceleration limit used for time parameterization (rad/s^2).
+    """
+
+    urdf: Path
+    srdf: Path
+    tcp_link: str
+    arm_joints: int
+    lower: np.ndarray
+    upper: np.ndarray
+    gripper_open: float
+    gripper_closed: float
+    home: np.ndarray
+    max_velocity: float = 1.5
+    max_acceleration: float = 2.0
+    finger_links: tuple[str, ...] = field(default=("panda_leftfinger", "panda_rightfinger"))
+
+    def clip(self, q: np.ndarray) -> np.ndarray:
+        """Clip arm joint values into the joint limits."""
+        return np.clip(q, self.lower, self.upper)
+
+    def within_limits(self, q: np.ndarray, tol: float = 1e-6) -> bool:
+        """True when every arm joint lies within its limits (with a small tolerance)."""
+        return bool(np.all(q >= self.lower - tol) and np.all(q <= self.upper + tol))
+
+
+def panda_spec() -> ArmSpec:
+    """The Panda of ManiSkill 3 (``panda_v2.urdf``) with the TCP between the fingertips.
+
+    Joint limits come from the URDF and the home configuration from ManiSkill's ``rest`` keyframe, so
+    the planner uses exactly the arm the simulator loads.
+    """
+    from mani_skill.agents.robots.panda.panda import Panda
+
+    urdf = Path(Panda.urdf_path)
+    names = [f"panda_joint{i}" for i in range(1, 8)]
+    lower, upper = urdf_joint_limits(urdf, names)
+    return ArmSpec(
+        urdf=urdf,
+        srdf=urdf.with_suffix(".srdf"),
+        tcp_link="panda_hand_tcp",
+        arm_joints=len(names),
+        lower=lower,
+        upper=upper,
+        gripper_open=0.04,
+        gripper_closed=-0.01,
+        home=np.asarray(Panda.keyframes["rest"].qpos[: len(names)], dtype=np.float64),
+    )
+
+
+def urdf_joint_limits(urdf: Path, joint_names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper position limits of the named joints, read from a URDF file."""
+    root = ET.parse(urdf).getroot()
+    limits = {}
+    for joint in root.iter("joint"):
+        limit = joint.find("limit")
+        if limit is not None and "lower" in limit.attrib:
+            limits[joint.attrib["name"]] = (float(limit.attrib["lower"]), float(limit.attrib["upper"]))
+    missing = [n for n in joint_names if n not in limits]
+    if missing:
+        raise ValueError(f"{urdf} has no position limits for joints {missing}")
+    lo, hi = zip(*(limits[n] for n in joint_names))
+    return np.array(lo), np.array(hi)

@@ -1,0 +1,52 @@
+"""Time parameterization of joint paths (TOPP-RA through mplib) sampled at the controller's rate."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def densify(path: np.ndarray, max_step: float = 0.05) -> np.ndarray:
+    """Insert waypoints so no joint moves more than ``max_step`` rad between consecutive ones.
+
+    A spline through sparse RRT waypoints could bulge away from the checked straight segments; dense waypoints
+    keep the timed trajectory on the path that was collision-checked.
+    """
+    path = np.asarray(path, dtype=np.float64)
+    if path.ndim != 2 or len(path) < 1:
+        raise ValueError(f"a path is an (N, dof) array with N >= 1, got shape {path.shape}")
+    out = [path[0]]
+    for a, b in zip(path[:-1], path[1:]):
+        n = max(1, int(np.ceil(np.max(np.abs(b - a)) / max_step)))
+        out.extend(a + (b - a) * t for t in np.linspace(0.0, 1.0, n + 1)[1:])
+    return np.stack(out)
+
+
+def time_parameterize(path: np.ndarray, dt: float, max_velocity: float, max_acceleration: float, planner) -> np.ndarray:
+    """Joint positions along ``path`` at every ``dt`` seconds, time-optimal under velocity/acceleration limits.
+
+    Args:
+        path: Waypoints (N×dof).
+        dt: Sample period (the controller period, ``1 / control_freq``).
+        max_velocity: Joint speed limit (rad/s), the same for every joint.
+        max_acceleration: Joint acceleration limit (rad/s²).
+        planner: The ``mplib.Planner`` whose TOPP-RA implementation is used.
+
+    Returns:
+        Positions (M×dof); the last row is exactly the path's end.
+    """
+    path = densify(path)
+    if len(path) < 2 or np.allclose(path[0], path[-1], atol=1e-6):
+        return path[-1:].copy()
+    dof = path.shape[1]
+    planner.joint_vel_limits = np.full(dof, max_velocity)
+    planner.joint_acc_limits = np.full(dof, max_acceleration)
+    # TOPP-RA's spline needs distinct, strictly increasing path parameters: drop repeated waypoints.
+    keep = np.concatenate([[True], np.any(np.abs(np.diff(path, axis=0)) > 1e-9, axis=1)])
+    path = path[keep]
+    if len(path) == 2:
+        path = densify(path, max_step=float(np.max(np.abs(path[1] - path[0]))) / 2 + 1e-9)
+    _, qs, _, _, _ = planner.TOPP(path, step=dt)
+    qs = np.asarray(qs, dtype=np.float64)
+    if len(qs) == 0 or not np.allclose(qs[-1], path[-1], atol=1e-4):
+        qs = np.concatenate([qs.reshape(-1, dof), path[-1:]])
+    return qs

@@ -1,0 +1,7 @@
+"""ManiSkill tasks of maniskill_pnp; importing this module registers every task id with ManiSkill and gymnasium."""
+
+from maniskill_pnp.tasks.cube_to_bin import CubeToBinEnv
+
+TASK_IDS = ("CubeToBin-v1",)
+
+__all__ = ["CubeToBinEnv", "TASK_IDS"]

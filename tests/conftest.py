@@ -1,0 +1,39 @@
+"""Shared fixtures: expensive ManiSkill envs are made once per session and reset per test."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import pytest
+import torch
+
+import maniskill_pnp  # noqa: F401  (registers the tasks)
+
+CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
+
+
+def pytest_collection_modifyitems(config, items):
+    if torch.cuda.is_available():
+        return
+    skip = pytest.mark.skip(reason="needs an NVIDIA GPU")
+    for item in items:
+        if "gpu" in item.keywords:
+            item.add_marker(skip)
+
+
+@pytest.fixture(scope="session")
+def cube_env():
+    """CubeToBin-v1 in pd_joint_pos mode on the CPU (state observations)."""
+    env = gym.make("CubeToBin-v1", obs_mode="state", control_mode="pd_joint_pos", **CPU)
+    yield env
+    env.close()
+
+
+WALL = ((0.13, 0.0, 0.12), (0.1, 0.015, 0.12))
+
+
+@pytest.fixture(scope="session")
+def wall_env():
+    """CubeToBin-v1 with a wall in front of the robot that parts y<0 from y>0."""
+    env = gym.make("CubeToBin-v1", obs_mode="state", control_mode="pd_joint_pos", obstacles=(WALL,), **CPU)
+    yield env
+    env.close()

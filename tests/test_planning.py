@@ -1,0 +1,156 @@
+"""The OMPL motion layer on a real ManiSkill scene: collision world, IK, plans, cache, primitives."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import sapien
+
+from maniskill_pnp.planning import MotionPrimitives, PlanCache, grasp_pose
+from maniskill_pnp.planning.trajectory import densify
+
+STATIC = {"table-workspace", "ground", "bin"}
+
+
+def _prims(env, seed=0, **kw):
+    env.reset(seed=seed)
+    return MotionPrimitives(env, static_actors=STATIC, seed=seed, **kw)
+
+
+def _cube_grasp(env):
+    cube = env.unwrapped.cube.pose
+    p, q = cube.p[0].numpy(), cube.q[0].numpy()
+    return grasp_pose(p, yaw=2 * np.arctan2(q[3], q[0]))
+
+
+def test_collision_world_mirrors_scene(cube_env):
+    prims = _prims(cube_env)
+    world = prims.world
+    world.sync_scene(cube_env.unwrapped.scene)
+    kinds = {name: {ob.kind for ob in obs} for name, obs in world.obstacles.items()}
+    assert kinds["table-workspace"] == {"box"} and kinds["cube"] == {"box"} and kinds["bin"] == {"box"}
+    assert len(world.obstacles["bin"]) == 5  # floor and four walls
+    assert world.is_valid(prims.executor.qpos())
+    before = world.fingerprint()
+    cube = cube_env.unwrapped.cube
+    cube.set_pose(sapien.Pose(p=[0.1, 0.1, 0.02]))
+    world.sync_scene(cube_env.unwrapped.scene)
+    assert world.fingerprint() != before
+    # Reaching down through the table is a collision with the table, named as such.
+    q = prims.executor.qpos().copy()
+    q[1] += 1.2
+    assert not world.is_valid(q)
+    assert any(other == "table-workspace" for _, other in world.collisions(q))
+
+
+def test_ik_prefers_current_configuration(cube_env):
+    prims = _prims(cube_env)
+    q0 = prims.executor.qpos()
+    res = prims.kin.ik(prims.kin.fk(q0), q0)
+    assert res.ok and np.max(np.abs(res.q - q0)) < 1e-2
+    far = prims.kin.ik(sapien.Pose(p=[1.5, 0.0, 0.05], q=prims.kin.fk(q0).q), q0)
+    assert not far.ok and "IK" in far.reason
+
+
+def test_plan_around_wall_is_collision_free_in_checker_and_simulator(wall_env):
+    prims = _prims(wall_env)
+    prims.world.sync_scene(wall_env.unwrapped.scene)
+    q_home = prims.executor.qpos()
+    down = prims.kin.fk(q_home).q
+    a = prims.kin.ik(sapien.Pose(p=[0.13, -0.2, 0.08], q=down), q_home)
+    b = prims.kin.ik(sapien.Pose(p=[0.13, 0.2, 0.08], q=down), q_home)
+    assert a.ok and b.ok
+    assert not prims.world.segment_valid(a.q, b.q), "the wall must block the straight joint-space segment"
+    assert prims.planner.plan(q_home, a.q).ok
+    res = prims.planner.plan(a.q, b.q)
+    assert res.ok and not res.cached, res.reason
+    dense = densify(res.path, max_step=0.01)
+    assert all(prims.world.is_valid(q) for q in dense)
+    assert np.allclose(res.path[0], a.q) and np.allclose(res.path[-1], b.q)
+
+    # Execute start → a → b in the simulator and watch the wall's contacts with every robot link.
+    scene, wall = wall_env.unwrapped.scene, wall_env.unwrapped.obstacles[0]
+    links = wall_env.unwrapped.agent.robot.get_links()
+    worst = []
+    prims.executor.on_control_step = lambda: worst.append(
+        max(float(scene.get_pairwise_contact_forces(link, wall).norm()) for link in links)
+    )
+    go_a = prims.move_to(a.q)
+    go_b = prims.move_to(b.q)
+    assert go_a.ok and go_b.ok, (go_a.reason, go_b.reason)
+    assert max(worst) == 0.0, "the arm touched the wall in simulation"
+    assert np.max(np.abs(prims.executor.qpos() - b.q)) < 0.02
+
+
+def test_plan_cache_reuses_only_in_the_same_scene(wall_env):
+    prims = _prims(wall_env)
+    prims.world.sync_scene(wall_env.unwrapped.scene)
+    q_home = prims.executor.qpos()
+    down = prims.kin.fk(q_home).q
+    a = prims.kin.ik(sapien.Pose(p=[0.13, -0.2, 0.08], q=down), q_home).q
+    b = prims.kin.ik(sapien.Pose(p=[0.13, 0.2, 0.08], q=down), q_home).q
+    first = prims.planner.plan(a, b)
+    again = prims.planner.plan(a, b)
+    assert first.ok and again.cached and np.array_equal(first.path, again.path)
+    # Move the cube: the scene fingerprint changes, so the saved plan is not looked up under the new key.
+    wall_env.unwrapped.cube.set_pose(sapien.Pose(p=[0.15, -0.15, 0.02]))
+    prims.world.sync_scene(wall_env.unwrapped.scene)
+    moved = prims.planner.plan(a, b)
+    assert moved.ok and not moved.cached
+
+
+def test_plan_cache_is_bounded():
+    cache = PlanCache(capacity=2)
+    for i in range(3):
+        cache.put(cache.key(np.zeros(7) + i, np.ones(7), "scene"), np.zeros((2, 7)))
+    assert len(cache) == 2
+    assert cache.get(cache.key(np.zeros(7), np.ones(7), "scene")) is None
+    with pytest.raises(ValueError, match="capacity"):
+        PlanCache(capacity=0)
+
+
+def test_pick_and_place_succeeds_in_9_of_10_seeds(cube_env):
+    successes, steps = 0, []
+    for seed in range(10):
+        prims = _prims(cube_env, seed=seed)
+        pick = prims.pick(_cube_grasp(cube_env), target="cube")
+        if pick.ok:
+            assert pick.grasped and pick.held == "cube"
+            place = prims.place(cube_env.unwrapped.bin_spec.region())
+            home = prims.go_home()
+            steps.append(pick.sim_steps + place.sim_steps + home.sim_steps)
+            successes += int(place.ok and bool(cube_env.unwrapped.evaluate()["success"].item()))
+    assert successes >= 9, f"{successes}/10 pick-and-place successes"
+
+
+def test_grasp_sensor_reports_an_empty_grasp(cube_env):
+    prims = _prims(cube_env)
+    pose = _cube_grasp(cube_env)
+    empty = grasp_pose(pose.p + np.array([0.0, 0.12, 0.0]), 0.0)  # 12 cm beside the cube: nothing to grasp
+    res = prims.pick(empty)
+    assert not res.ok and not res.grasped and res.stage == "grasp_check"
+    assert "nothing" in res.reason
+
+
+def test_slide_pushes_cube_along_direction(cube_env):
+    prims = _prims(cube_env, seed=3)
+    cube = cube_env.unwrapped.cube
+    cube.set_pose(sapien.Pose(p=[0.0, -0.05, 0.02]))
+    start = np.array([-0.045, -0.05, 0.015])
+    before = cube.pose.p[0].numpy().copy()
+    res = prims.slide(start, direction=np.array([1.0, 0.0]), length=0.08, target="cube")
+    assert res.ok, res.reason
+    delta = cube.pose.p[0].numpy() - before
+    assert res.moved >= 0.05 and delta[0] >= 0.05 and abs(delta[1]) < 0.02
+
+
+def test_unreachable_target_is_a_failure_result_not_an_exception(cube_env):
+    prims = _prims(cube_env)
+    res = prims.pick(grasp_pose(np.array([1.6, 0.0, 0.02]), 0.0), target="cube")
+    assert not res.ok and res.stage == "pregrasp_ik" and res.reason
+    res = prims.slide(np.array([1.6, 0.0, 0.02]), np.array([0.0, 1.0]))
+    assert not res.ok and res.stage == "preslide_ik"
+    res = prims.place(cube_env.unwrapped.bin_spec.region())
+    assert not res.ok and res.stage == "input" and "nothing is held" in res.reason
+    res = prims.pick(_cube_grasp(cube_env), target="no_such_object")
+    assert not res.ok and res.stage == "input" and "no_such_object" in res.reason
