@@ -6,7 +6,7 @@ Importing the package registers its tasks with ManiSkill and gymnasium (``gym.ma
 from maniskill_pnp import tasks  # noqa: F401  (registers the task ids)
 
 # TorchRL integration, exported lazily so that importing `maniskill_pnp` (e.g. for
-# planning) does not pay for importing torchrl and mani_skill.
+# planning) does not pay for importing torchrl.
 _LAZY_TORCHRL_EXPORTS = ("make_torchrl_env", "ManiSkillTorchRLEnv")
 
 

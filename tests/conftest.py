@@ -28,7 +28,7 @@ def cube_env():
     env.close()
 
 
-WALL = ((0.13, 0.0, 0.12), (0.1, 0.015, 0.12))
+WALL = ((0.15, 0.0, 0.12), (0.1, 0.015, 0.12))
 
 
 @pytest.fixture(scope="session")

@@ -57,8 +57,8 @@ def test_plan_around_wall_is_collision_free_in_checker_and_simulator(wall_env):
     prims.world.sync_scene(wall_env.unwrapped.scene)
     q_home = prims.executor.qpos()
     down = prims.kin.fk(q_home).q
-    a = prims.kin.ik(sapien.Pose(p=[0.13, -0.2, 0.08], q=down), q_home)
-    b = prims.kin.ik(sapien.Pose(p=[0.13, 0.2, 0.08], q=down), q_home)
+    a = prims.kin.ik(sapien.Pose(p=[0.15, -0.2, 0.08], q=down), q_home)
+    b = prims.kin.ik(sapien.Pose(p=[0.15, 0.2, 0.08], q=down), q_home)
     assert a.ok and b.ok
     assert not prims.world.segment_valid(a.q, b.q), "the wall must block the straight joint-space segment"
     assert prims.planner.plan(q_home, a.q).ok
@@ -71,14 +71,19 @@ def test_plan_around_wall_is_collision_free_in_checker_and_simulator(wall_env):
     # Execute start → a → b in the simulator and watch the wall's contacts with every robot link.
     scene, wall = wall_env.unwrapped.scene, wall_env.unwrapped.obstacles[0]
     links = wall_env.unwrapped.agent.robot.get_links()
-    worst = []
-    prims.executor.on_control_step = lambda: worst.append(
-        max(float(scene.get_pairwise_contact_forces(link, wall).norm()) for link in links)
-    )
+    touches = []
+
+    def watch():
+        for link in links:
+            force = float(scene.get_pairwise_contact_forces(link, wall).norm())
+            if force > 0:
+                touches.append((prims.executor.control_steps, link.name, force, prims.executor.qpos().round(3).tolist()))
+
+    prims.executor.on_control_step = watch
     go_a = prims.move_to(a.q)
     go_b = prims.move_to(b.q)
     assert go_a.ok and go_b.ok, (go_a.reason, go_b.reason)
-    assert max(worst) == 0.0, "the arm touched the wall in simulation"
+    assert not touches, f"the arm touched the wall in simulation: {touches[:3]}; stages {go_a.stages} {go_b.stages}"
     assert np.max(np.abs(prims.executor.qpos() - b.q)) < 0.02
 
 
@@ -87,8 +92,8 @@ def test_plan_cache_reuses_only_in_the_same_scene(wall_env):
     prims.world.sync_scene(wall_env.unwrapped.scene)
     q_home = prims.executor.qpos()
     down = prims.kin.fk(q_home).q
-    a = prims.kin.ik(sapien.Pose(p=[0.13, -0.2, 0.08], q=down), q_home).q
-    b = prims.kin.ik(sapien.Pose(p=[0.13, 0.2, 0.08], q=down), q_home).q
+    a = prims.kin.ik(sapien.Pose(p=[0.15, -0.2, 0.08], q=down), q_home).q
+    b = prims.kin.ik(sapien.Pose(p=[0.15, 0.2, 0.08], q=down), q_home).q
     first = prims.planner.plan(a, b)
     again = prims.planner.plan(a, b)
     assert first.ok and again.cached and np.array_equal(first.path, again.path)

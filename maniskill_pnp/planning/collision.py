@@ -65,10 +65,13 @@ class CollisionWorld:
         self._base_inv = self.base_pose.inv()
         self.obstacles: dict[str, list[Obstacle]] = {}
         self._attached = False
+        self.margin = 0.0
         self._fixed_links = frozenset({self._planner.user_link_names[0]})
 
     # ------------------------------------------------------------------ scene
-    def sync_scene(self, scene, *, ignore: Collection[str] = (), env_idx: int = 0, skip: Collection[str] = ()) -> None:
+    def sync_scene(
+        self, scene, *, ignore: Collection[str] = (), env_idx: int = 0, skip: Collection[str] = (), margin: float = 0.0
+    ) -> None:
         """Replace the obstacles by the collision shapes of every actor in ``scene`` (a ManiSkillScene).
 
         Args:
@@ -76,7 +79,13 @@ class CollisionWorld:
             ignore: Actor names to leave out: the object being approached or held.
             env_idx: Which parallel sub-scene to read.
             skip: Further actor names that are never obstacles (e.g. visual-only markers).
+            margin: Grow every obstacle by this clearance (m). Free-space motions use a margin so that the
+                joint controller's tracking error cannot turn a grazing plan into a contact; straight segments
+                near surfaces (descend, push) use the exact geometry.
         """
+        if margin < 0:
+            raise ValueError(f"collision margin must be >= 0, got {margin}")
+        self.margin = float(margin)
         for name in list(self.obstacles):
             for i, _ in enumerate(self.obstacles[name]):
                 self._world.remove_normal_object(f"{name}#{i}")
@@ -101,27 +110,26 @@ class CollisionWorld:
             if kind in ("capsule", "cylinder"):
                 world = world * _Z_TO_X
             elif kind == "plane":
-                world = world * sapien.Pose(p=[-_PLANE_SLAB_HALF[0], 0.0, 0.0])
+                world = world * sapien.Pose(p=[self.margin - _PLANE_SLAB_HALF[0], 0.0, 0.0])
             local = self._base_inv * world
             yield Obstacle(name, kind, np.concatenate([local.p, local.q]), signature), shape
 
     def _fcl_object(self, ob: Obstacle, shape):
-        fcl = self._fcl
+        fcl, m = self._fcl, self.margin
         if ob.kind == "box":
-            geom = fcl.Box(*(2 * np.asarray(shape.half_size, dtype=np.float64)))
+            geom = fcl.Box(*(2 * (np.asarray(shape.half_size, dtype=np.float64) + m)))
         elif ob.kind == "sphere":
-            geom = fcl.Sphere(float(shape.radius))
+            geom = fcl.Sphere(float(shape.radius) + m)
         elif ob.kind == "capsule":
-            geom = fcl.Capsule(float(shape.radius), 2 * float(shape.half_length))
+            geom = fcl.Capsule(float(shape.radius) + m, 2 * float(shape.half_length))
         elif ob.kind == "cylinder":
-            geom = fcl.Cylinder(float(shape.radius), 2 * float(shape.half_length))
+            geom = fcl.Cylinder(float(shape.radius) + m, 2 * (float(shape.half_length) + m))
         elif ob.kind == "plane":
             geom = fcl.Box(*(2 * _PLANE_SLAB_HALF))
         elif ob.kind == "convex":
-            verts = np.asarray(shape.vertices, dtype=np.float64) * np.asarray(shape.scale, dtype=np.float64)
-            geom = fcl.Convex(verts, np.asarray(shape.triangles, dtype=np.int32))
+            geom = fcl.Convex(_grown_vertices(shape, m), np.asarray(shape.triangles, dtype=np.int32))
         else:  # triangle mesh
-            verts = np.asarray(shape.vertices, dtype=np.float64) * np.asarray(shape.scale, dtype=np.float64)
+            verts = _grown_vertices(shape, m)
             geom = fcl.BVHModel()
             geom.beginModel()
             geom.addSubModel(verts, np.asarray(shape.triangles, dtype=np.int32))
@@ -137,6 +145,7 @@ class CollisionWorld:
                 h.update(ob.kind.encode())
                 h.update(np.round(np.asarray(ob.signature), decimals).tobytes())
                 h.update(np.round(ob.pose, decimals).tobytes())
+        h.update(np.float64(self.margin).tobytes())
         h.update(b"attached" if self._attached else b"-")
         return h.hexdigest()[:16]
 
@@ -217,6 +226,16 @@ def _pose(p: np.ndarray | sapien.Pose) -> sapien.Pose:
     if p.shape != (7,):
         raise ValueError(f"a pose is 7 numbers (x, y, z, qw, qx, qy, qz), got shape {p.shape}")
     return sapien.Pose(p=p[:3], q=p[3:])
+
+
+def _grown_vertices(shape, margin: float) -> np.ndarray:
+    """Mesh vertices (scaled) pushed ``margin`` outward from the centroid: a convex shape grown by about ``margin``."""
+    verts = np.asarray(shape.vertices, dtype=np.float64) * np.asarray(shape.scale, dtype=np.float64)
+    if margin == 0.0:
+        return verts
+    out = verts - verts.mean(0)
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return verts + margin * out / np.maximum(norm, 1e-9)
 
 
 def _shape_signature(shape) -> tuple[str, tuple[float, ...]]:

@@ -110,6 +110,7 @@ class MotionPrimitives:
             shape counts as a movable object.
         non_obstacles: Actor names never treated as obstacles (e.g. visual goal markers).
         time_budget: Seconds RRT-Connect may search per free-space motion.
+        clearance: Margin (m) by which obstacles grow for free-space motions (kept when start and goal allow).
         cache: Plan cache shared across calls (a fresh one by default).
         seed: Seed of IK restarts and OMPL.
         on_control_step: Callback after every control step (video recording).
@@ -134,6 +135,7 @@ class MotionPrimitives:
         static_actors: Collection[str] = (),
         non_obstacles: Collection[str] = ("goal_site",),
         time_budget: float = 2.0,
+        clearance: float = 0.015,
         cache: PlanCache | None = None,
         seed: int = 0,
         on_control_step=None,
@@ -148,6 +150,8 @@ class MotionPrimitives:
         self.static_actors = frozenset(static_actors)
         self.non_obstacles = frozenset(non_obstacles)
         self.home = self.arm.home.copy()
+        self.clearance = clearance
+        self._ignored: set[str] = set()
         self._planning_time = 0.0
         self.held: str | None = None
 
@@ -322,7 +326,12 @@ class MotionPrimitives:
             self._planning_time += time.perf_counter() - t0
 
     def _move_to(self, q_goal: np.ndarray, stage: str, res: PrimitiveResult) -> None:
+        """Free-space motion: plan with the clearance margin; without it only when start or goal lie inside it."""
+        self.world.sync_scene(self.env.scene, ignore=self._ignored, skip=self.non_obstacles, margin=self.clearance)
         plan = self._timed(self.planner.plan, self.executor.qpos(), q_goal)
+        if not plan.ok and plan.reason.startswith(("start", "goal")):
+            self.world.sync_scene(self.env.scene, ignore=self._ignored, skip=self.non_obstacles)
+            plan = self._timed(self.planner.plan, self.executor.qpos(), q_goal)
         if not plan.ok:
             raise _StageFailed(stage, plan.reason)
         self._execute(plan.path, stage, res, "cached plan" if plan.cached else f"{len(plan.path)} waypoints")
@@ -341,7 +350,8 @@ class MotionPrimitives:
         res.stages.append((stage, True, f"{detail}, {len(traj)} control steps, final error {err:.3f} rad"))
 
     def _sync(self, ignore: Collection[str] = ()) -> None:
-        self.world.sync_scene(self.env.scene, ignore=set(ignore) | ({self.held} if self.held else set()), skip=self.non_obstacles)
+        self._ignored = set(ignore) | ({self.held} if self.held else set())
+        self.world.sync_scene(self.env.scene, ignore=self._ignored, skip=self.non_obstacles)
         self.world.set_fingers(float(np.min(self.executor.finger_qpos())))
 
     def _attach(self, name: str) -> None:

@@ -88,9 +88,11 @@ class JointSpacePlanner:
         world: Collision world (joint limits, self-collision, scene obstacles).
         time_budget: Default seconds RRT-Connect may search before giving up.
         max_step: RRT-Connect's maximum extension per step (rad).
-        resolution: Fraction of the state-space extent between validity checks along a motion.
+        resolution: Joint-space distance (rad, L2) between validity checks along a motion; finer than the
+            final dense check of :meth:`CollisionWorld.path_valid`, so OMPL rarely returns what that check rejects.
         simplify_time: Seconds the OMPL path simplifier may spend shortening a solution.
         cache: Plan cache (a fresh one by default); pass ``None`` to disable caching.
+        attempts: RRT-Connect runs per query before giving up (a new run after a failed final check).
         seed: Seed of OMPL's random number generator (for reproducible plans). OMPL's generator is global to
             the process and can be seeded only before its first use, so the first planner's seed holds.
     """
@@ -101,9 +103,10 @@ class JointSpacePlanner:
         *,
         time_budget: float = 2.0,
         max_step: float = 0.3,
-        resolution: float = 0.0005,
+        resolution: float = 0.004,
         simplify_time: float = 0.2,
         cache: PlanCache | None | str = "default",
+        attempts: int = 2,
         seed: int | None = 0,
     ):
         from ompl import base as ob
@@ -114,6 +117,7 @@ class JointSpacePlanner:
         _seed_ompl_once(ou, seed)
         self.world = world
         self.time_budget = time_budget
+        self.attempts = attempts
         self.cache = PlanCache() if cache == "default" else cache
         dof = world.arm.arm_joints
         self._dof = dof
@@ -125,7 +129,7 @@ class JointSpacePlanner:
         self._space.setBounds(bounds)
         self._setup = og.SimpleSetup(self._space)
         self._setup.setStateValidityChecker(self._valid_state)
-        self._setup.getSpaceInformation().setStateValidityCheckingResolution(resolution)
+        self._setup.getSpaceInformation().setStateValidityCheckingResolution(resolution / self._space.getMaximumExtent())
         rrt = og.RRTConnect(self._setup.getSpaceInformation())
         rrt.setRange(max_step)
         self._setup.setPlanner(rrt)
@@ -171,7 +175,10 @@ class JointSpacePlanner:
             path = self.cache.get(key)
             if path is not None and self.world.path_valid(path):
                 return PlanResult(path.copy(), cached=True)
-        path, reason = self._rrt_connect(q_start, q_goal, time_budget or self.time_budget)
+        for _ in range(self.attempts):
+            path, reason = self._rrt_connect(q_start, q_goal, time_budget or self.time_budget)
+            if path is not None:
+                break
         elapsed = time.perf_counter() - t0
         if path is None:
             return PlanResult(None, reason, planning_time=elapsed)

@@ -70,7 +70,7 @@ class CubeToBinEnv(BaseEnv):
 
     @property
     def _default_human_render_camera_configs(self):
-        pose = sapien_utils.look_at(eye=[0.55, 0.45, 0.6], target=[-0.05, 0.1, 0.05])
+        pose = sapien_utils.look_at(eye=[0.75, 0.55, 0.75], target=[-0.15, 0.1, 0.1])
         return CameraConfig("render_camera", pose, 512, 512, 1, 0.01, 100)
 
     def _load_agent(self, options: dict):
