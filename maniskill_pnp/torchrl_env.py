@@ -487,7 +487,7 @@ def make_torchrl_env(
     """Makes a ManiSkill env with ``gymnasium.make`` and wraps it for TorchRL.
 
     Backends not given default to :func:`maniskill_pnp.runtime.default_backends`:
-    PhysX CPU and lavapipe without CUDA, GPU simulation and rendering with it.
+    PhysX on the CPU for one env (GPU for several, with CUDA); rendering on the GPU with CUDA, else lavapipe.
 
     Args:
         env_id: Gymnasium id, e.g. ``"PickCube-v1"`` or one of this project's
@@ -511,7 +511,7 @@ def make_torchrl_env(
     requested = None if device is None else torch.device(device)
     if requested is not None:
         make_kwargs.setdefault("sim_backend", _sim_backend_for(requested))
-    for key, value in default_backends().items():
+    for key, value in default_backends(make_kwargs.get("num_envs", 1)).items():
         make_kwargs.setdefault(key, value)
     env = gym.make(env_id, **make_kwargs)
     wrapped = ManiSkillTorchRLEnv(env, info_keys=info_keys)

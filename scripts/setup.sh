@@ -64,7 +64,10 @@ else
     spec="."
     [[ -n "$extras" ]] && spec=".[$extras]"
     log "installing maniskill_pnp${extras:+[$extras]} into $venv (first time: a few minutes)"
-    "$venv/bin/python" -m pip install -q --upgrade pip >/dev/null
-    "$venv/bin/python" -m pip install -q -e "$spec"
+    pip_log="$venv/pip-install.log"
+    if ! { "$venv/bin/python" -m pip install -q --upgrade pip && "$venv/bin/python" -m pip install -q -e "$spec"; } >"$pip_log" 2>&1; then
+        tail -n 30 "$pip_log" >&2
+        log "error: pip install failed (full log: $pip_log)"; exit 1
+    fi
     echo "$want" > "$stamp"
 fi

@@ -158,14 +158,11 @@ class JointSpacePlanner:
         q_goal = np.asarray(q_goal, dtype=np.float64)
         if q_start.shape != (self._dof,) or q_goal.shape != (self._dof,):
             raise ValueError(f"start and goal must be {self._dof} joint values, got {q_start.shape} and {q_goal.shape}")
-        if not self.world.is_valid(q_start):
-            pairs = self.world.collisions(q_start)
-            why = f"collides ({pairs[0][0]}/{pairs[0][1]})" if pairs else "is outside the joint limits"
-            return PlanResult(None, f"start configuration {why}")
-        if not self.world.is_valid(q_goal):
-            pairs = self.world.collisions(q_goal)
-            why = f"collides ({pairs[0][0]}/{pairs[0][1]})" if pairs else "is outside the joint limits"
-            return PlanResult(None, f"goal configuration {why}")
+        for name, q in (("start", q_start), ("goal", q_goal)):
+            if not self.world.is_valid(q):
+                pairs = self.world.collisions(q)
+                why = f"collides ({pairs[0][0]}/{pairs[0][1]})" if pairs else "is outside the joint limits"
+                return PlanResult(None, f"{name} configuration {why}")
         t0 = time.perf_counter()
         if self.world.segment_valid(q_start, q_goal):
             return PlanResult(np.stack([q_start, q_goal]), planning_time=time.perf_counter() - t0)
