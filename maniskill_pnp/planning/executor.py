@@ -45,6 +45,10 @@ class SimExecutor:
         self._robot = self.env.agent.robot
         self._gripper_cmd = 1.0  # normalized gripper action: +1 open, -1 closed
 
+    def reset(self) -> None:
+        """Forget the last gripper command (the gripper is open after an env reset); call after ``env.reset``."""
+        self._gripper_cmd = 1.0
+
     @property
     def sim_steps(self) -> int:
         """Physics steps executed since construction."""

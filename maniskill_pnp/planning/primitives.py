@@ -171,6 +171,21 @@ class MotionPrimitives:
         """
         return self._run(self._pick, pose, target, candidates)
 
+    def reach(self, pose: sapien.Pose) -> PrimitiveResult:
+        """Move the TCP to ``pose`` (or its 180° twin about the vertical) by IK and an OMPL plan.
+
+        The first half of :meth:`pick`; tasks that choose the approach point themselves (the conveyor's
+        pre-pick coordinates) call it directly.
+        """
+        return self._run(self._reach, pose)
+
+    def grasp(self, pose: sapien.Pose, target: str | None = None, *, candidates: Collection[str] | None = None) -> PrimitiveResult:
+        """From wherever the TCP is, a straight line to ``pose``, close the jaws, lift; the second half of :meth:`pick`.
+
+        Arguments and the ``grasped`` sensing are as for :meth:`pick`.
+        """
+        return self._run(self._grasp, pose, target, candidates)
+
     def place(self, region: PlaceRegion, target: str | None = None) -> PrimitiveResult:
         """Carry the held object above ``region``, release it, and check it came to rest inside."""
         return self._run(self._place, region, target)
@@ -196,22 +211,25 @@ class MotionPrimitives:
 
     # ================================================================== stage logic
     def _pick(self, res: PrimitiveResult, pose: sapien.Pose, target: str | None, candidates) -> None:
-        movable = self._movable()
-        if target is not None and target not in movable:
-            raise _StageFailed("input", f"unknown object {target!r}; movable objects: {sorted(movable)}")
-        self.executor.gripper(1.0, self.GRIPPER_STEPS if self._fingers_closed() else 0)
-        twins = [pose, pose * sapien.Pose(q=[0.0, 0.0, 0.0, 1.0])]
-        pre = [sapien.Pose(p=p.p + [0.0, 0.0, self.PREGRASP_HEIGHT], q=p.q) for p in twins]
-        # Free-space motion to the pre-grasp: every object is an obstacle.
+        self._check_target(target)
+        self._reach(res, sapien.Pose(p=pose.p + [0.0, 0.0, self.PREGRASP_HEIGHT], q=pose.q), "pregrasp")
+        self._grasp(res, pose, target, candidates)
+
+    def _reach(self, res: PrimitiveResult, pose: sapien.Pose, stage: str = "reach") -> None:
+        # Free-space motion: every object is an obstacle.
         self._sync()
-        ik = self._timed(self.kin.ik_any, pre, self.executor.qpos())
+        ik = self._timed(self.kin.ik_any, _twins(pose), self.executor.qpos())
         if not ik.ok:
-            raise _StageFailed("pregrasp_ik", ik.reason)
-        self._move_to(ik.q, "move_to_pregrasp", res)
+            raise _StageFailed(f"{stage}_ik", ik.reason)
+        self._move_to(ik.q, f"move_to_{stage}", res)
+
+    def _grasp(self, res: PrimitiveResult, pose: sapien.Pose, target: str | None, candidates) -> None:
+        movable = self._check_target(target)
+        self.executor.gripper(1.0, self.GRIPPER_STEPS if self._fingers_closed() else 0)
         # Straight descent: the target (or, when unknown, any movable object) may be touched.
         self._sync(ignore={target} if target else movable)
         fk = self.kin.fk(self.executor.qpos())
-        goal = min(twins, key=lambda p: quat_angle(p.q, fk.q))
+        goal = min(_twins(pose), key=lambda p: quat_angle(p.q, fk.q))
         self._straight(goal, "descend", res)
         heights = self._object_heights(movable)
         self.executor.gripper(-1.0, self.GRIPPER_STEPS)
@@ -224,14 +242,18 @@ class MotionPrimitives:
         lifted = {n: h for n, h in self._object_heights(movable).items() if h - heights[n] > self.LIFTED}
         fingers = self.executor.finger_qpos()
         pool = set(candidates) if candidates is not None else movable
-        held = [n for n in lifted if n in pool]
-        if target is not None:
-            held = [n for n in held if n == target]
+        held = [n for n in lifted if n in pool and (target is None or n == target)]
         res.grasped = bool(np.min(fingers) > self.EMPTY_GAP) and closed_on_something and bool(held)
         if not res.grasped:
             why = "jaws closed on nothing" if not closed_on_something else "object slipped or was not lifted"
             raise _StageFailed("grasp_check", why)
         self.held = res.held = max(held, key=lambda n: lifted[n])
+
+    def _check_target(self, target: str | None) -> set[str]:
+        movable = self._movable()
+        if target is not None and target not in movable:
+            raise _StageFailed("input", f"unknown object {target!r}; movable objects: {sorted(movable)}")
+        return movable
 
     def _place(self, res: PrimitiveResult, region: PlaceRegion, target: str | None) -> None:
         name = target or self.held
@@ -274,13 +296,8 @@ class MotionPrimitives:
         yaw = float(np.arctan2(d[1], d[0])) + np.pi / 2
         tip = grasp_pose(start, yaw)
         self.executor.gripper(-1.0, self.GRIPPER_STEPS if not self._fingers_closed() else 0)
-        self.world.set_fingers(0.0)
-        self._sync()
         above = sapien.Pose(p=start + [0.0, 0.0, self.PREGRASP_HEIGHT], q=tip.q)
-        ik = self._timed(self.kin.ik_any, [above, above * sapien.Pose(q=[0.0, 0.0, 0.0, 1.0])], self.executor.qpos())
-        if not ik.ok:
-            raise _StageFailed("preslide_ik", ik.reason)
-        self._move_to(ik.q, "move_to_preslide", res)
+        self._reach(res, above, "preslide")
         movable = self._movable()
         self._sync(ignore=movable)  # the tip may come down on, and then push, any movable object
         q_tcp = self.kin.fk(self.executor.qpos()).q
@@ -390,3 +407,8 @@ class MotionPrimitives:
             if speed < 0.01:
                 break
 
+
+
+def _twins(pose: sapien.Pose) -> list[sapien.Pose]:
+    """A parallel-jaw pose and its 180° twin about the vertical: the same grasp for symmetric jaws."""
+    return [pose, pose * sapien.Pose(q=[0.0, 0.0, 0.0, 1.0])]
