@@ -22,6 +22,58 @@ def _bench(args) -> None:
         from maniskill_pnp.bench.primitives import PrimitivesBenchConfig, run
 
         run(PrimitivesBenchConfig(episodes=args.episodes, out=args.out / "primitives.json"))
+    elif args.which == "conveyor":
+        from maniskill_pnp.bench.conveyor import ConveyorBenchConfig, run as run_conveyor
+
+        run_conveyor(ConveyorBenchConfig(iterations=args.iterations, out=args.out))
+
+
+def _train_conveyor(args) -> None:
+    from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, main
+
+    fields = {f: getattr(args, f) for f in _conveyor_fields()}
+    summary = main(ConveyorConfig(**fields))
+    print(json.dumps(summary, indent=2))
+
+
+def _eval_conveyor(args) -> None:
+    from maniskill_pnp.agents.conveyor_eval import EvalConfig, run
+
+    try:
+        run(EvalConfig(checkpoints=tuple(args.checkpoints), iterations=args.iterations, category_iterations=args.category_iterations,
+                       out=args.out, seed=args.seed, curves=tuple(args.curves or ())))
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"eval-conveyor: {e}") from e
+
+
+def _conveyor_fields() -> list[str]:
+    from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig
+    import dataclasses
+
+    return [f.name for f in dataclasses.fields(ConveyorConfig)]
+
+
+def _add_conveyor_train_args(parser: argparse.ArgumentParser) -> None:
+    """One option per ConveyorConfig field; the help text is the field's docstring."""
+    import dataclasses
+
+    from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, field_docs
+    from maniskill_pnp.agents.tabular import ALGORITHMS
+    from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, REWARD_SCHEMES, SPEEDS
+
+    choices = dict(algorithm=ALGORITHMS, reward_scheme=REWARD_SCHEMES, alignment=ALIGNMENTS, speed=SPEEDS)
+    docs = field_docs()
+    for f in dataclasses.fields(ConveyorConfig):
+        flag = "--" + f.name.replace("_", "-")
+        help_text = docs.get(f.name, "").replace("%", "%%") + " (default: %(default)s)"
+        if f.name == "object_kinds":
+            parser.add_argument(flag, nargs="+", choices=OBJECT_KINDS, default=list(f.default), help=help_text)
+        elif f.name in ("alignment", "speed"):
+            parser.add_argument(flag, choices=choices[f.name], default=None, help=help_text)
+        elif f.name == "out":
+            parser.add_argument(flag, type=Path, default=f.default, help=help_text)
+        else:
+            parser.add_argument(flag, type=type(f.default), choices=choices.get(f.name), default=f.default, help=help_text)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,10 +86,30 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_demo)
 
     bench = sub.add_parser("bench", help="run a benchmark; prints numbers and writes JSON")
-    bench.add_argument("which", choices=["primitives"], help="primitives: pick-and-place success, planning and wall time")
+    bench.add_argument(
+        "which", choices=["primitives", "conveyor"],
+        help="primitives: pick-and-place success, planning and wall time; "
+        "conveyor: train Q-learning and SARSA with the default config, then the random test cases",
+    )
     bench.add_argument("--episodes", type=int, default=20, help="seeded episodes (default: %(default)s)")
     bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="folder for the JSON report (default: %(default)s)")
+    bench.add_argument("--iterations", type=int, default=50, help="conveyor: iterations per random test case (default: %(default)s)")
     bench.set_defaults(func=_bench)
+
+    train = sub.add_parser("train-conveyor", help="train tabular Q-learning or SARSA on ConveyorProximity-v1 (thesis ch. 4)")
+    _add_conveyor_train_args(train)
+    train.set_defaults(func=_train_conveyor)
+
+    ev = sub.add_parser("eval-conveyor", help="greedy evaluation of saved conveyor Q-tables: per-category tables, random test cases 1-5, curves")
+    ev.add_argument("checkpoints", nargs="+", type=Path, help="qtable.pt files (or run folders holding one) to evaluate")
+    ev.add_argument("--iterations", type=int, default=50, help="episodes per random test case (default: %(default)s)")
+    ev.add_argument("--category-iterations", type=int, default=0,
+                    help="episodes per (object kind, alignment, speed) cell of the per-category tables; 0 skips them (default: %(default)s)")
+    ev.add_argument("--out", type=Path, default=Path("runs/conveyor_eval"), help="folder for tables (Markdown, CSV, JSON) and plots (default: %(default)s)")
+    ev.add_argument("--seed", type=int, default=12345, help="seed of the test-case draws and episodes (default: %(default)s)")
+    ev.add_argument("--curves", nargs="*", type=Path,
+                    help="run folders whose CSV logs to plot as learning curves (default: the checkpoints' run folders)")
+    ev.set_defaults(func=_eval_conveyor)
     return parser
 
 

@@ -1,0 +1,378 @@
+"""Recipe: tabular Q-learning or SARSA on ``ConveyorProximity-v1`` (thesis chapter 4), on TorchRL.
+
+One agent step is a whole phase of one pick (wait and sense → pre-pick coordinate → grasp coordinate), so an
+episode is one object and at most three frames. The state id, the valid actions per phase and the coordinate sets
+come from the task's public :class:`~maniskill_pnp.tasks.conveyor_config.ConveyorSpec`.
+
+Run it with ``python -m maniskill_pnp.cli train-conveyor --algorithm sarsa --seed 1``; a run folder
+``<out>/<algorithm>_<reward_scheme>_seed<seed>/`` receives ``config.json``, ``qtable.pt`` and the CSV logs
+(``scalars/train/success_rate.csv`` ...).
+
+Metric: ``success_rate`` (DESIGN.md: objects placed in the bin / pick-and-place attempts). On the conveyor every
+episode is one object and one pick-and-place attempt, so it is the fraction of episodes whose object ended in the
+bin; during training it is the running mean over the last ``success_window`` episodes of the ε-greedy behaviour.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import json
+import os
+import tempfile
+import time
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.envs import Compose, TransformedEnv
+from torchrl.envs.transforms import ActionMask
+from torchrl.envs.utils import ExplorationType
+from torchrl.record.loggers import Logger
+from torchrl.record.loggers.csv import CSVLogger
+from tqdm import tqdm
+
+from maniskill_pnp.agents.tabular import ALGORITHMS, QTable, StateActionMask, bootstrap_for, make_qtable_policy, td_update
+from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, REWARD_SCHEMES, SPEEDS, ConveyorSpec
+
+ENV_ID = "ConveyorProximity-v1"
+QTABLE_FORMAT = "maniskill_pnp.conveyor_qtable/1"
+
+
+@dataclass(frozen=True)
+class ConveyorConfig:
+    """Everything a conveyor training run depends on; saved as ``config.json`` in the run folder.
+
+    The thesis (ch. 4) gives no values for α, γ or ε; ε follows its chapter-5 schedule (0.3 → 0.1), α and γ are ours.
+    """
+
+    algorithm: str = "qlearning"
+    """TD control algorithm: "qlearning" (off-policy, bootstraps the best valid next action) or "sarsa"
+    (on-policy, bootstraps the next action the ε-greedy policy actually took)."""
+    steps: int = 3000
+    """Agent steps (frames) to train for; an episode is 1–3 steps (the thesis' learning curves run 3000)."""
+    alpha: float = 0.5
+    """TD step size α in (0, 1]."""
+    gamma: float = 0.9
+    """Discount γ in [0, 1]."""
+    eps_start: float = 0.3
+    """ε of the ε-greedy behaviour policy at step 0."""
+    eps_end: float = 0.1
+    """ε after ``eps_decay_steps`` steps (linear decay, then constant)."""
+    eps_decay_steps: int = 2000
+    """Steps over which ε decays linearly from ``eps_start`` to ``eps_end``."""
+    q_init: float = 1.0
+    """Initial value of every Q entry; 1.0 (the reward of a placed object) makes the greedy policy try each
+    coordinate before settling (optimistic initial values)."""
+    reward_scheme: str = "normal"
+    """Reward scheme of the task: "normal" (1 / 0.5 / 0), "negative" (−1 on full failure), "bonus" (+1 for the
+    hand-marked optimal coordinates) or "negative_bonus" (both)."""
+    object_kinds: tuple[str, ...] = OBJECT_KINDS
+    """Object kinds drawn at random each episode (subset of cuboid, cylinder, sphere)."""
+    alignment: str | None = None
+    """Fix the lane ("left", "center", "right"); None draws it at random each episode."""
+    speed: str | None = None
+    """Fix the belt speed class ("slow", "medium", "fast"); None draws it at random each episode."""
+    seed: int = 0
+    """Seed of the env's episode draws, the planner and the exploration."""
+    frames_per_batch: int = 3
+    """Frames per collector batch (one full episode is 3); TD updates follow each batch."""
+    success_window: int = 100
+    """Episodes in the running success rate shown on the progress bar and logged."""
+    log_interval: int = 30
+    """Log the training metrics every this many steps."""
+    out: Path = Path("runs/conveyor")
+    """Parent folder of the run folder ``<algorithm>_<reward_scheme>_seed<seed>``."""
+
+    def __post_init__(self):
+        if self.algorithm not in ALGORITHMS:
+            raise ValueError(f"unknown algorithm {self.algorithm!r}; valid: {list(ALGORITHMS)}")
+        if self.reward_scheme not in REWARD_SCHEMES:
+            raise ValueError(f"unknown reward_scheme {self.reward_scheme!r}; valid: {list(REWARD_SCHEMES)}")
+        kinds = (self.object_kinds,) if isinstance(self.object_kinds, str) else tuple(self.object_kinds)
+        if not kinds or any(k not in OBJECT_KINDS for k in kinds):
+            raise ValueError(f"object_kinds must be a non-empty subset of {list(OBJECT_KINDS)}, got {list(kinds)}")
+        object.__setattr__(self, "object_kinds", kinds)
+        object.__setattr__(self, "out", Path(self.out))
+        if self.alignment is not None and self.alignment not in ALIGNMENTS:
+            raise ValueError(f"unknown alignment {self.alignment!r}; valid: {list(ALIGNMENTS)} or None")
+        if self.speed is not None and self.speed not in SPEEDS:
+            raise ValueError(f"unknown speed {self.speed!r}; valid: {list(SPEEDS)} or None")
+        if not 0.0 < self.alpha <= 1.0:
+            raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
+        if not 0.0 <= self.eps_end <= self.eps_start <= 1.0:
+            raise ValueError(f"need 0 <= eps_end <= eps_start <= 1, got {self.eps_start} -> {self.eps_end}")
+        for name in ("steps", "eps_decay_steps", "frames_per_batch", "success_window", "log_interval"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+    @property
+    def run_name(self) -> str:
+        return f"{self.algorithm}_{self.reward_scheme}_seed{self.seed}"
+
+    @property
+    def run_dir(self) -> Path:
+        return self.out / self.run_name
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["out"], d["object_kinds"] = str(self.out), list(self.object_kinds)
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict) -> ConveyorConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown config fields {unknown}; known: {sorted(known)}")
+        return cls(**{**d, "object_kinds": tuple(d.get("object_kinds", OBJECT_KINDS))})
+
+
+def field_docs(cls=ConveyorConfig) -> dict[str, str]:
+    """The docstring under each field of a dataclass (the CLI's ``--help`` text: one source of truth)."""
+    import ast
+    import inspect
+    import textwrap
+
+    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
+    docs = {}
+    for node, after in zip(body, body[1:]):
+        if isinstance(node, ast.AnnAssign) and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
+            docs[node.target.id] = " ".join(str(after.value.value).split())
+    return docs
+
+
+# ----------------------------------------------------------------------------- factories
+def valid_action_table(spec: ConveyorSpec) -> torch.Tensor:
+    """``[num_states, action_n]`` bool: the actions valid in each state id's phase (from the public spec).
+
+    The terminal phase ("done") has no valid action, but its row lets action 0 through: TorchRL's masked
+    ``Categorical.rand`` fails on an empty mask, and ``ActionMask`` puts the mask of the last (terminal) observation
+    on the action spec until the next reset (``check_env_specs`` samples right there). No action is ever taken in a
+    terminal state, and terminal transitions bootstrap 0 whatever their next mask says.
+    """
+    valid = torch.zeros(spec.num_states, spec.action_n, dtype=torch.bool)
+    for s in range(spec.num_states):
+        valid[s, : max(1, spec.num_actions[spec.decode_state(s)["phase"]])] = True
+    return valid
+
+
+def make_env(cfg: ConveyorConfig, *, reward_scheme: str | None = None, **task_options) -> TransformedEnv:
+    """The conveyor task as a TorchRL env with ``"action_mask"`` and a phase-masked action spec.
+
+    ``task_options`` override the config's ``object_kinds`` / ``alignment`` / ``speed``.
+    """
+    from maniskill_pnp.torchrl_env import make_torchrl_env
+
+    import maniskill_pnp  # noqa: F401  (registers the task ids)
+
+    options = dict(object_kinds=cfg.object_kinds, alignment=cfg.alignment, speed=cfg.speed)
+    options.update(task_options)
+    base = make_torchrl_env(
+        ENV_ID,
+        obs_mode="state",
+        control_mode="pd_joint_pos",
+        sim_backend="physx_cpu",
+        render_backend="cpu",
+        reward_scheme=reward_scheme or cfg.reward_scheme,
+        planner_seed=cfg.seed,
+        **options,
+    )
+    env = TransformedEnv(base, Compose(StateActionMask(valid_action_table(ConveyorSpec())), ActionMask()))
+    env.set_seed(cfg.seed)
+    return env
+
+
+def make_logger(run_dir: Path) -> Logger:
+    """CSV logs in the run folder; TensorBoard instead when the ``tensorboard`` package is importable."""
+    if importlib.util.find_spec("tensorboard") is not None:
+        from torchrl.record.loggers.tensorboard import TensorboardLogger
+
+        return TensorboardLogger(exp_name=run_dir.name, log_dir=str(run_dir.parent))
+    return CSVLogger(exp_name=run_dir.name, log_dir=str(run_dir.parent))
+
+
+def atomic_write_bytes(path: Path, write) -> None:
+    """Write through ``write(file)`` into a temp file beside ``path``, then ``os.replace`` it into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def save_config(cfg: ConveyorConfig, path: Path) -> None:
+    atomic_write_bytes(path, lambda f: f.write(json.dumps(cfg.to_json(), indent=2).encode()))
+
+
+def save_qtable(table: QTable, cfg: ConveyorConfig, path: Path, *, spec: ConveyorSpec, extra: dict | None = None) -> None:
+    """``torch.save`` the table with its config and the spec-derived shapes that :func:`load_qtable` checks."""
+    payload = dict(
+        format=QTABLE_FORMAT,
+        values=table.values.clone(),
+        config=cfg.to_json(),
+        num_states=spec.num_states,
+        action_n=spec.action_n,
+        phases=list(PHASES),
+        **(extra or {}),
+    )
+    atomic_write_bytes(path, lambda f: torch.save(payload, f))
+
+
+def load_qtable(path: Path, *, spec: ConveyorSpec | None = None) -> tuple[QTable, ConveyorConfig, dict]:
+    """Load a table saved by :func:`save_qtable`; ValueError naming the file and the problem if it is unusable."""
+    path = Path(path)
+    spec = spec or ConveyorSpec()
+    if not path.is_file():
+        raise FileNotFoundError(f"Q-table file {path} does not exist")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises several types for truncated / foreign files
+        raise ValueError(f"Q-table file {path} is unreadable (truncated or not a torch.save file): {e}") from e
+    if not isinstance(payload, dict) or payload.get("format") != QTABLE_FORMAT:
+        raise ValueError(f"Q-table file {path} is not a conveyor Q-table (expected format {QTABLE_FORMAT!r})")
+    values = payload.get("values")
+    want = (spec.num_states, spec.action_n)
+    if not isinstance(values, torch.Tensor) or tuple(values.shape) != want:
+        got = tuple(values.shape) if isinstance(values, torch.Tensor) else type(values).__name__
+        raise ValueError(f"Q-table file {path} has shape {got}, but the current ConveyorSpec needs {want}")
+    if payload.get("phases") != list(PHASES):
+        raise ValueError(f"Q-table file {path} was saved for phases {payload.get('phases')}, the task has {list(PHASES)}")
+    table = QTable(*want)
+    table.values.copy_(values)
+    return table, ConveyorConfig.from_json(payload["config"]), payload
+
+
+# ----------------------------------------------------------------------------- transitions with their next action
+class NextActionPairing:
+    """Pairs each collected transition with ``"next_action"``, the action the behaviour policy took at ``s'``.
+
+    SARSA bootstraps ``Q(s', a')`` of the action actually taken next, which the collector only records in the next
+    frame (possibly in the next batch). A transition is therefore held back until the frame that continues its
+    trajectory arrives; a terminal transition is released at once (it bootstraps 0). Each ``a'`` was chosen before
+    the held-back ``Q(s, a)`` was updated, as in the online algorithm. A trajectory cut by truncation takes ``a'``
+    from the behaviour policy at ``s'`` (the conveyor's episodes, at most 3 steps, are never truncated).
+    """
+
+    def __init__(self, policy):
+        self.policy = policy
+        self.pending: TensorDictBase | None = None
+
+    def __call__(self, batch: TensorDictBase) -> TensorDictBase | None:
+        """Takes a flat, time-ordered batch from one env; returns the transitions whose ``a'`` is known."""
+        ready = []
+        for i in range(batch.batch_size[0]):
+            frame = batch[i : i + 1].clone()
+            if self.pending is not None:
+                self._check_continues(self.pending, frame)
+                self.pending.set("next_action", frame.get("action"))
+                ready.append(self.pending)
+                self.pending = None
+            terminated = bool(frame.get(("next", "terminated")).any())
+            truncated = bool(frame.get(("next", "truncated")).any())
+            if terminated:
+                frame.set("next_action", torch.zeros_like(frame.get("action")))
+                ready.append(frame)
+            elif truncated:
+                with torch.no_grad():
+                    follow = self.policy(frame.get("next").exclude("reward", "done", "terminated", "truncated").clone())
+                frame.set("next_action", follow.get("action"))
+                ready.append(frame)
+            else:
+                self.pending = frame
+        return torch.cat(ready) if ready else None
+
+    @staticmethod
+    def _check_continues(pending: TensorDictBase, frame: TensorDictBase) -> None:
+        key = ("collector", "traj_ids")
+        if key in pending.keys(True) and key in frame.keys(True):
+            if not torch.equal(pending.get(key), frame.get(key)):
+                raise RuntimeError("a non-terminal transition was followed by another trajectory's frame")
+        if not torch.equal(pending.get(("next", "observation")), frame.get("observation")):
+            raise RuntimeError("the frame after a non-terminal transition does not start at its next state")
+
+
+# ----------------------------------------------------------------------------- main
+def main(cfg: ConveyorConfig) -> dict:
+    """Train one tabular agent; returns a summary (run folder, files, final running success rate, wall time)."""
+    torch.manual_seed(cfg.seed)
+    spec = ConveyorSpec()
+    run_dir = cfg.run_dir
+    run_dir.mkdir(parents=True, exist_ok=True)
+    save_config(cfg, run_dir / "config.json")
+
+    # 1. make the env (TorchRL, with the phase action mask)
+    env = make_env(cfg)
+
+    # 2. make the Q-table, the greedy policy and its ε-greedy exploration
+    table = QTable(spec.num_states, spec.action_n, init=cfg.q_init)
+    _, explore, egreedy = make_qtable_policy(
+        table, env.action_spec_unbatched, eps_init=cfg.eps_start, eps_end=cfg.eps_end, annealing_num_steps=cfg.eps_decay_steps
+    )
+
+    # 3. make the TD update: Q-learning and SARSA differ only in the bootstrap term
+    bootstrap = bootstrap_for(cfg.algorithm)
+    pairing = NextActionPairing(explore)
+
+    # 4. make the collector (one env, a few frames per batch, exploration on)
+    collector = Collector(
+        env, explore, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.steps,
+        exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
+    )
+
+    # 5. make the logger
+    logger = make_logger(run_dir)
+
+    # 6. main loop: collect, pair with a', TD-update, anneal ε, log
+    outcomes: deque[bool] = deque(maxlen=cfg.success_window)
+    episodes = placed = frames = 0
+    next_log = cfg.log_interval
+    t0 = time.perf_counter()
+    bar = tqdm(total=cfg.steps, desc=f"{cfg.algorithm} {cfg.reward_scheme}", unit="step")
+    for batch in collector:
+        batch = batch.reshape(-1)
+        ready = pairing(batch)
+        if ready is not None:
+            td_update(table, ready, alpha=cfg.alpha, gamma=cfg.gamma, bootstrap=bootstrap)
+        egreedy.step(batch.numel())
+        frames += batch.numel()
+        ends = batch.get(("next", "done")).reshape(-1)
+        for ok in batch.get(("next", "success")).reshape(-1)[ends].tolist():
+            outcomes.append(bool(ok))
+            episodes, placed = episodes + 1, placed + bool(ok)
+        running = sum(outcomes) / len(outcomes) if outcomes else 0.0
+        bar.update(batch.numel())
+        bar.set_postfix(success=f"{running:.2f}", eps=f"{egreedy.eps.item():.2f}", episodes=episodes)
+        if frames >= next_log or frames >= cfg.steps:
+            logger.log_scalar("train/success_rate", running, step=frames)
+            logger.log_scalar("train/episodes", episodes, step=frames)
+            logger.log_scalar("train/epsilon", egreedy.eps.item(), step=frames)
+            logger.log_scalar("time/wall_s", time.perf_counter() - t0, step=frames)
+            next_log = frames + cfg.log_interval
+    bar.close()
+    collector.shutdown()
+    env.close()
+    wall = time.perf_counter() - t0
+
+    # 7. save the Q-table (atomically, with its config and shapes)
+    summary = dict(
+        run_dir=str(run_dir), steps=frames, episodes=episodes, placed=placed,
+        final_running_success_rate=running, wall_s=wall,
+    )
+    save_qtable(table, cfg, run_dir / "qtable.pt", spec=spec, extra=dict(train=summary))
+    atomic_write_bytes(run_dir / "train_summary.json", lambda f: f.write(json.dumps(summary, indent=2).encode()))
+    return summary
+
+
+__all__ = [
+    "ConveyorConfig", "NextActionPairing", "load_qtable", "main", "make_env", "save_qtable", "valid_action_table",
+]
