@@ -22,6 +22,10 @@ def _bench(args) -> None:
         from maniskill_pnp.bench.primitives import PrimitivesBenchConfig, run
 
         run(PrimitivesBenchConfig(episodes=args.episodes, out=args.out / "primitives.json"))
+    elif args.which == "clutter-oracle":
+        from maniskill_pnp.bench.clutter_oracle import ClutterOracleBenchConfig, run as run_oracle
+
+        run_oracle(ClutterOracleBenchConfig(scenes=args.episodes, out=args.out / "clutter_oracle.json"))
     elif args.which == "conveyor":
         from maniskill_pnp.bench.conveyor import ConveyorBenchConfig, run as run_conveyor
 
@@ -87,11 +91,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="run a benchmark; prints numbers and writes JSON")
     bench.add_argument(
-        "which", choices=["primitives", "conveyor"],
+        "which", choices=["primitives", "clutter-oracle", "conveyor"],
         help="primitives: pick-and-place success, planning and wall time; "
+        "clutter-oracle: ClutterGrasp-v1 cleared by the scripted heightmap oracle (10 objects, --episodes scenes); "
         "conveyor: train Q-learning and SARSA with the default config, then the random test cases",
     )
-    bench.add_argument("--episodes", type=int, default=20, help="seeded episodes (default: %(default)s)")
+    bench.add_argument("--episodes", type=int, default=20, help="seeded episodes (primitives) or scenes (clutter-oracle) (default: %(default)s)")
     bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="folder for the JSON report (default: %(default)s)")
     bench.add_argument("--iterations", type=int, default=50, help="conveyor: iterations per random test case (default: %(default)s)")
     bench.set_defaults(func=_bench)

@@ -1,0 +1,217 @@
+"""Clutter generation: random or hand-designed piles of procedural objects in the workspace.
+
+* :func:`sample_clutter` draws poses for a list of :class:`ObjectSpec`: loosely packed (upright, random yaw,
+  footprints kept ``min_gap`` apart by rejection sampling, so every object can be grasped) or any packing
+  (random orientation, anywhere in the spawn square, dropped from staggered heights so they pile up).
+* :func:`validate_layout` checks an explicit layout (a list of ``(ObjectSpec, pose)``): every bounding box inside
+  the workspace, above the table, and no two overlapping; it raises a ``ValueError`` naming the culprits.
+* :func:`settle` steps the simulation with the arm held still until the objects stop moving.
+* :func:`object_status` says where each object is: in the workspace, in the bin, or lost.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import sapien
+import torch
+
+from maniskill_pnp.tasks.objects import KINDS, ObjectSpec, random_object_spec
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+#: Object counts (min, max) per clutter density (thesis chapters 5 and 6).
+DENSITY_PRESETS = {"minimum": (6, 10), "thesis": (10, 15), "medium": (15, 20), "maximum": (25, 30), "complicated": (3, 7)}
+
+Pose7 = tuple[float, float, float, float, float, float, float]  # x, y, z, qw, qx, qy, qz
+
+
+def yaw_quat(yaw: float) -> np.ndarray:
+    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+
+
+def as_pose(pose) -> sapien.Pose:
+    """A sapien.Pose from a sapien.Pose, a 7-vector (p, q wxyz) or a 3-vector (position, identity rotation)."""
+    if isinstance(pose, sapien.Pose):
+        return pose
+    a = np.asarray(pose, dtype=np.float64).reshape(-1)
+    if a.shape == (3,):
+        return sapien.Pose(p=a)
+    if a.shape != (7,) or not np.isfinite(a).all():
+        raise ValueError(f"a pose is (x, y, z) or (x, y, z, qw, qx, qy, qz), got {pose!r}")
+    q = a[3:] / np.linalg.norm(a[3:])
+    return sapien.Pose(p=a[:3], q=q)
+
+
+def random_specs(rng: np.random.Generator, n: int, kinds: Sequence[str] = KINDS) -> list[ObjectSpec]:
+    """``n`` random objects of ``kinds``."""
+    return [random_object_spec(rng, tuple(kinds)) for _ in range(n)]
+
+
+def sample_clutter(
+    rng: np.random.Generator,
+    specs: Sequence[ObjectSpec],
+    workspace: WorkspaceSpec,
+    loosely_packed: bool = True,
+    min_gap: float = 0.01,
+    max_tries: int = 300,
+    restarts: int = 30,
+) -> list[sapien.Pose]:
+    """Drop poses for ``specs`` over the spawn square of ``workspace``.
+
+    Loosely packed: upright, random yaw, footprints (bounding rectangles) at least ``min_gap`` apart and inside
+    the spawn square, released 2 mm above the table. Otherwise: random orientation anywhere in the square, released at staggered heights (they may pile).
+
+    Raises:
+        ValueError: the objects do not fit loosely (fewer objects or a smaller ``min_gap`` would).
+    """
+    (x0, x1), (y0, y1) = workspace.spawn_bounds
+    poses: list[sapien.Pose] = []
+    if loosely_packed:
+        # Largest footprints first (they are the hard ones to fit); whole restarts when one no longer fits.
+        order = sorted(range(len(specs)), key=lambda i: -specs[i].extents[0] * specs[i].extents[1])
+        for _ in range(restarts):
+            placed: list[tuple] = []
+            by_index: dict[int, sapien.Pose] = {}
+            for i in order:
+                spec = specs[i]
+                for _ in range(max_tries):
+                    xy = rng.uniform([x0, y0], [x1, y1])
+                    yaw = rng.uniform(-np.pi, np.pi)
+                    z = workspace.table_z + spec.extents[2] / 2 + 0.002
+                    pose = sapien.Pose(p=[xy[0], xy[1], z], q=yaw_quat(yaw))
+                    c, rot, half = _obb(spec, pose)
+                    # Footprints only: a tall slab in z, grown by half the gap in x and y.
+                    box = (np.array([c[0], c[1], 0.0]), rot, np.array([half[0] + min_gap / 2, half[1] + min_gap / 2, 1.0]))
+                    if _inside_xy(box, (x0, x1, y0, y1)) and not any(_footprints_overlap(box, other) for other in placed):
+                        placed.append(box)
+                        by_index[i] = pose
+                        break
+                else:
+                    break
+            if len(by_index) == len(specs):
+                return [by_index[i] for i in range(len(specs))]
+        raise ValueError(
+            f"could not place {len(specs)} objects loosely (min gap {min_gap} m) in the spawn square; "
+            "use fewer objects, a smaller min_gap or loosely_packed=False"
+        )
+    z = workspace.table_z
+    for spec in specs:
+        xy = rng.uniform([x0, y0], [x1, y1])
+        q = rng.normal(size=4)
+        r = float(np.linalg.norm(spec.extents)) / 2
+        poses.append(sapien.Pose(p=[xy[0], xy[1], z + r + 0.005], q=q / np.linalg.norm(q)))
+        z += 2 * r + 0.005  # stagger release heights so no two objects start inside each other
+    return poses
+
+
+def _obb(spec: ObjectSpec, pose: sapien.Pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rot = pose.to_transformation_matrix()[:3, :3]
+    return np.asarray(pose.p, dtype=np.float64), rot, spec.extents / 2
+
+
+def _obb_overlap(a, b, tol: float = 1e-4) -> bool:
+    """Separating-axis test of two oriented boxes (centre, rotation, half size); touching does not count."""
+    ca, ra, ha = a
+    cb, rb, hb = b
+    axes = [ra[:, i] for i in range(3)] + [rb[:, i] for i in range(3)]
+    axes += [np.cross(ra[:, i], rb[:, j]) for i in range(3) for j in range(3)]
+    d = cb - ca
+    for ax in axes:
+        n = np.linalg.norm(ax)
+        if n < 1e-9:
+            continue
+        ax = ax / n
+        pa = np.sum(np.abs(ra.T @ ax) * ha)
+        pb = np.sum(np.abs(rb.T @ ax) * hb)
+        if abs(d @ ax) >= pa + pb - tol:
+            return False
+    return True
+
+
+def _footprints_overlap(a, b) -> bool:
+    """Overlap of two footprint slabs; far-apart pairs are ruled out by their bounding circles first."""
+    if np.hypot(*(a[0][:2] - b[0][:2])) > np.hypot(*a[2][:2]) + np.hypot(*b[2][:2]):
+        return False
+    return _obb_overlap(a, b)
+
+
+def _inside_xy(box, rect) -> bool:
+    c, rot, half = box
+    ext = np.abs(rot[:2, :2]) @ half[:2]
+    x0, x1, y0, y1 = rect
+    return x0 <= c[0] - ext[0] and c[0] + ext[0] <= x1 and y0 <= c[1] - ext[1] and c[1] + ext[1] <= y1
+
+
+def validate_layout(layout: Sequence[tuple[ObjectSpec, object]], workspace: WorkspaceSpec) -> list[tuple[ObjectSpec, sapien.Pose]]:
+    """Check an explicit layout and return it with poses as ``sapien.Pose``.
+
+    Each entry is ``(ObjectSpec, pose)``; pose as for :func:`as_pose`. Bounding boxes must lie inside the heightmap
+    square, not below the table, and not overlap each other (they may touch).
+
+    Raises:
+        ValueError: empty layout, a bad entry, an object outside the workspace, or two overlapping objects.
+    """
+    if not layout:
+        raise ValueError("a layout needs at least one (ObjectSpec, pose) entry")
+    out = []
+    b = workspace.bounds
+    for i, entry in enumerate(layout):
+        if not isinstance(entry, (tuple, list)) or len(entry) != 2 or not isinstance(entry[0], ObjectSpec):
+            raise ValueError(f"layout entry {i} must be (ObjectSpec, pose), got {entry!r}")
+        spec, pose = entry[0], as_pose(entry[1])
+        c, rot, half = _obb(spec, pose)
+        corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half @ rot.T + c
+        lo, hi = corners.min(0), corners.max(0)
+        if lo[0] < b[0, 0] or hi[0] > b[0, 1] or lo[1] < b[1, 0] or hi[1] > b[1, 1]:
+            raise ValueError(
+                f"layout object {i} ({spec.kind}) spans x {lo[0]:.3f}..{hi[0]:.3f}, y {lo[1]:.3f}..{hi[1]:.3f}: outside the "
+                f"workspace x {b[0, 0]:.3f}..{b[0, 1]:.3f}, y {b[1, 0]:.3f}..{b[1, 1]:.3f}"
+            )
+        if lo[2] < workspace.table_z - 1e-3:
+            raise ValueError(f"layout object {i} ({spec.kind}) reaches z {lo[2]:.3f}, below the table at {workspace.table_z}")
+        out.append((spec, pose))
+    for i in range(len(out)):
+        for j in range(i + 1, len(out)):
+            if _obb_overlap(_obb(*out[i]), _obb(*out[j])):
+                raise ValueError(f"layout objects {i} ({out[i][0].kind}) and {j} ({out[j][0].kind}) overlap")
+    return out
+
+
+def settle(env, actors: Sequence, hold_action: torch.Tensor, max_steps: int = 60, lin_tol: float = 0.005, ang_tol: float = 0.05, min_steps: int = 3) -> int:
+    """Step the physics of ``env`` (ManiSkill ``BaseEnv``; batched ``hold_action`` as the controller target) until every actor moves slower than the tolerances.
+
+    Returns:
+        Control steps taken.
+    """
+    for k in range(1, max_steps + 1):
+        env.agent.set_action(hold_action)
+        for _ in range(env._sim_steps_per_control):
+            env.agent.before_simulation_step()
+            env.scene.step()
+        if k < min_steps:
+            continue
+        lin = max((torch.linalg.norm(a.linear_velocity[0]).item() for a in actors), default=0.0)
+        ang = max((torch.linalg.norm(a.angular_velocity[0]).item() for a in actors), default=0.0)
+        if lin < lin_tol and ang < ang_tol:
+            return k
+    return max_steps
+
+
+def object_status(positions: np.ndarray, workspace: WorkspaceSpec, bin_margin: float = 0.01) -> list[str]:
+    """Where each object (world positions, N×3) is: ``"workspace"``, ``"bin"`` or ``"lost"``.
+
+    An object is in the workspace when it lies over the heightmap square no lower than 5 cm below the table
+    (objects that fell off the table are lost) and no higher than ``max_height`` (a held object counts as there).
+    """
+    region = workspace.bin.region()
+    b = workspace.bounds
+    out = []
+    for p in np.asarray(positions, dtype=np.float64).reshape(-1, 3):
+        if region.contains(p, margin=bin_margin):
+            out.append("bin")
+        elif workspace.contains_xy(p[:2]) and workspace.table_z - 0.05 <= p[2] <= b[2, 1] + 0.2:
+            out.append("workspace")
+        else:
+            out.append("lost")
+    return out

@@ -1,0 +1,100 @@
+"""ClutterGrasp-v1: registration, spaces, seeded resets, bad actions and options, and the oracle clearing a scene."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+import maniskill_pnp  # noqa: F401  (registers the tasks)
+from maniskill_pnp.tasks import TASK_IDS, ClutterGraspEnv
+from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
+from maniskill_pnp.tasks.objects import ObjectSpec
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
+N = 16 * 224 * 224
+
+
+@pytest.fixture(scope="module")
+def env():
+    """A loosely packed clutter of 4 objects."""
+    e = gym.make("ClutterGrasp-v1", num_objects=4, **CPU)
+    yield e
+    e.close()
+
+
+def test_id_resolves_to_our_class(env):
+    assert "ClutterGrasp-v1" in TASK_IDS
+    assert isinstance(env.unwrapped, ClutterGraspEnv)
+    assert env.unwrapped.single_action_space == gym.spaces.Discrete(N)
+
+
+def test_reset_gives_heightmaps_and_is_reproducible(env):
+    obs, info = env.reset(seed=3)
+    assert obs["color_heightmap"].shape == (1, 224, 224, 3) and obs["color_heightmap"].dtype == torch.uint8
+    assert obs["depth_heightmap"].shape == (1, 224, 224) and obs["depth_heightmap"].dtype == torch.float32
+    assert env.unwrapped.single_observation_space["depth_heightmap"].shape == (224, 224)
+    assert info["objects_remaining"] == 4 and info["lost_objects"] == 0 and info["num_actions"] == 0
+    names = list(env.unwrapped.active)
+    other, _ = env.reset(seed=4)
+    again, _ = env.reset(seed=3)
+    assert env.unwrapped.active == names
+    assert not torch.equal(other["depth_heightmap"], obs["depth_heightmap"])
+    assert torch.allclose(again["depth_heightmap"], obs["depth_heightmap"], atol=1e-3)
+    assert (again["color_heightmap"].int() - obs["color_heightmap"].int()).abs().float().mean() < 1.0
+
+
+@pytest.mark.parametrize(
+    "action",
+    [-1, N, 3.0, float("nan"), np.array([1, 2]), np.zeros((1, 1, 1), dtype=np.int64), torch.tensor(0.5), True, "7"],
+)
+def test_bad_actions_raise_before_moving(env, action):
+    env.reset(seed=0)
+    q0 = env.unwrapped.agent.robot.get_qpos().clone()
+    with pytest.raises(ValueError, match=f"0..{N - 1}"):
+        env.step(action)
+    assert torch.equal(env.unwrapped.agent.robot.get_qpos(), q0)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(num_objects=0), "num_objects"),
+        (dict(num_objects=(5, 3)), "num_objects"),
+        (dict(num_objects="crowded"), "density preset"),
+        (dict(workspace=None, num_envs=2), "num_envs"),
+        (dict(object_kinds=("torus",)), "object_kinds"),
+        (dict(control_mode="pd_ee_delta_pose"), "pd_joint_pos"),
+        (dict(obs_mode="state"), "obs_mode"),
+        (dict(layout=[(ObjectSpec("cuboid", (0.02, 0.02, 0.02)), (-0.06, -0.1, 0.02))] * 2), "overlap"),
+    ],
+)
+def test_bad_options_raise(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        gym.make("ClutterGrasp-v1", **kwargs, **CPU)
+
+
+def test_bad_workspace_options_raise():
+    with pytest.raises(ValueError, match="num_rotations"):
+        WorkspaceSpec(num_rotations=7)
+    with pytest.raises(ValueError, match="heightmap_size"):
+        WorkspaceSpec(heightmap_size=0)
+
+
+def test_oracle_clears_a_loose_scene(env):
+    """The heightmap-only oracle empties a 4-object loosely packed clutter into the bin."""
+    oracle = HeightmapGraspOracle(env.unwrapped.workspace)
+    obs, info = env.reset(seed=1)
+    grasps, steps = 0, 0
+    terminated = truncated = False
+    while not (terminated or truncated):
+        obs, reward, terminated, truncated, info = env.step(oracle(obs["depth_heightmap"][0]))
+        steps += 1
+        grasps += info["grasp_success"]
+        assert reward.item() == (1.0 if info["place_success"] else 0.5 if info["grasp_success"] else 0.0)
+        assert {"objects_remaining", "num_actions", "consecutive_failures", "lost_objects", "stage", "reason"} <= set(info)
+    assert terminated and info["objects_remaining"] == 0
+    assert info["objects_in_bin"] >= 3 and info["lost_objects"] <= 1
+    assert grasps / steps >= 0.6

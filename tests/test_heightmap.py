@@ -1,0 +1,135 @@
+"""Workspace geometry, the pixel action index and RGB-D heightmaps (a box of known size at a known pose)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import sapien
+import torch
+
+from maniskill_pnp.tasks.clutter import validate_layout
+from maniskill_pnp.tasks.objects import ObjectSpec
+from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+WS = WorkspaceSpec()
+LAYOUT = PixelActionLayout(1, WS.num_rotations, WS.heightmap_size, WS.heightmap_size)
+
+
+def test_workspace_defaults_and_pixel_world_round_trip():
+    assert WS.heightmap_size == 224 and WS.pixel_size == 0.002 and WS.num_rotations == 16
+    assert WS.side == pytest.approx(0.448)
+    rng = np.random.default_rng(0)
+    rows, cols = rng.integers(0, 224, 100), rng.integers(0, 224, 100)
+    xyz = WS.pixel_to_world(rows, cols, 0.01)
+    assert xyz.shape == (100, 3) and np.allclose(xyz[:, 2], WS.table_z + 0.01)
+    r, c = WS.world_to_pixel(xyz)
+    assert (r == rows).all() and (c == cols).all()
+    tr, tc = WS.world_to_pixel(torch.as_tensor(WS.pixel_to_world(torch.as_tensor(rows), torch.as_tensor(cols), 0.0)))
+    assert (tr.numpy() == rows).all() and (tc.numpy() == cols).all()
+    assert WS.world_to_pixel(np.array([5.0, 5.0, 0.0])) == (-1, -1)
+    assert WS.rotation_to_yaw(4) == pytest.approx(np.pi / 2)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(num_rotations=7), "num_rotations"),
+        (dict(num_rotations=0), "num_rotations"),
+        (dict(heightmap_size=0), "heightmap_size"),
+        (dict(pixel_size=0.0), "pixel_size"),
+        (dict(max_height=-1.0), "max_height"),
+    ],
+)
+def test_workspace_rejects_bad_options(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        WorkspaceSpec(**kwargs)
+
+
+def test_encode_decode_round_trip_vectorized():
+    g = torch.Generator().manual_seed(0)
+    idx = torch.randint(0, LAYOUT.size, (1000,), generator=g)
+    p, r, i, j = LAYOUT.decode(idx)
+    assert (LAYOUT.encode(p, r, i, j) == idx).all()
+    assert int(r.max()) < 16 and int(i.max()) < 224 and int(j.max()) < 224
+    npidx = idx.numpy()
+    assert (LAYOUT.encode(*LAYOUT.decode(npidx)) == npidx).all()
+    assert LAYOUT.decode(LAYOUT.encode(0, 15, 223, 223)) == (0, 15, 223, 223)
+    assert LAYOUT.encode(0, 1, 0, 0) == 224 * 224
+    # Matches the flat index of a (primitives, rotations, H, W) Q-value tensor.
+    q = torch.zeros(LAYOUT.shape)
+    q[0, 3, 10, 20] = 1.0
+    assert int(q.argmax()) == LAYOUT.encode(0, 3, 10, 20)
+
+
+@pytest.mark.parametrize("bad", [-1, LAYOUT.size, 1.0, float("nan"), True, np.array([0.5]), torch.tensor([-3, 0])])
+def test_decode_rejects_bad_indices(bad):
+    with pytest.raises(ValueError, match="0..|integer"):
+        LAYOUT.decode(bad)
+
+
+def test_encode_rejects_out_of_range_parts():
+    with pytest.raises(ValueError, match="rotation out of range"):
+        LAYOUT.encode(0, 16, 0, 0)
+    with pytest.raises(ValueError, match="col"):
+        LAYOUT.encode(0, 0, 0, np.array([0, 224]))
+    with pytest.raises(ValueError, match="row must be an integer"):
+        LAYOUT.encode(0, 0, 1.5, 0)
+
+
+def test_layout_validation():
+    cube = ObjectSpec("cuboid", (0.02, 0.02, 0.02))
+    cx, cy = WS.center
+    with pytest.raises(ValueError, match="overlap"):
+        validate_layout([(cube, (cx, cy, 0.02)), (cube, (cx + 0.03, cy, 0.02))], WS)
+    with pytest.raises(ValueError, match="outside the workspace"):
+        validate_layout([(cube, (cx + 0.3, cy, 0.02))], WS)
+    with pytest.raises(ValueError, match="at least one"):
+        validate_layout([], WS)
+    ok = validate_layout([(cube, (cx, cy, 0.02)), (cube, (cx + 0.041, cy, 0.02))], WS)
+    assert len(ok) == 2 and isinstance(ok[0][1], sapien.Pose)
+
+
+def test_object_specs_are_checked():
+    with pytest.raises(ValueError, match="unknown object kind"):
+        ObjectSpec("torus", (0.01,))
+    with pytest.raises(ValueError, match="at least"):
+        ObjectSpec("cuboid", (0.02, 0.02, 0.005))
+    with pytest.raises(ValueError, match="gripper"):
+        ObjectSpec("cuboid", (0.05, 0.05, 0.02))
+
+
+BOX = ObjectSpec("cuboid", (0.03, 0.015, 0.025), color=(0.1, 0.2, 0.9))  # 6 x 3 x 5 cm
+BOX_XY = (WS.center[0] + 0.04, WS.center[1] - 0.05)
+BOX_YAW = 0.0
+
+
+@pytest.fixture(scope="module")
+def box_env():
+    """ClutterGrasp-v1 whose only object is BOX, placed by an explicit layout."""
+    q = [np.cos(BOX_YAW / 2), 0.0, 0.0, np.sin(BOX_YAW / 2)]
+    env = gym.make(
+        "ClutterGrasp-v1", layout=[(BOX, (*BOX_XY, BOX.extents[2] / 2, *q))], sim_backend="physx_cpu", render_backend="cpu"
+    )
+    yield env
+    env.close()
+
+
+def test_heightmap_of_a_known_box(box_env):
+    """One 6 x 3 x 5 cm box: height within 3 mm and footprint within 2 px, from both fused cameras."""
+    obs, _ = box_env.reset(seed=0)
+    h = obs["depth_heightmap"][0].numpy()
+    assert h.shape == (224, 224) and h.dtype == np.float32
+    assert obs["color_heightmap"].shape == (1, 224, 224, 3) and obs["color_heightmap"].dtype == torch.uint8
+    mask = h > 0.01
+    rows, cols = np.nonzero(mask)
+    assert np.median(h[mask]) == pytest.approx(0.05, abs=0.003)
+    assert np.abs(h[~mask]).max() < 0.003  # the table is flat at 0
+    # Footprint: 60 mm along x (cols) = 30 px, 30 mm along y (rows) = 15 px, centred on the box.
+    assert abs((cols.max() - cols.min() + 1) - 30) <= 2 and abs((rows.max() - rows.min() + 1) - 15) <= 2
+    r0, c0 = box_env.unwrapped.workspace.world_to_pixel(np.array(BOX_XY))
+    assert abs(rows.mean() - (r0 + 0.5)) <= 2 and abs(cols.mean() - (c0 + 0.5)) <= 2
+    # The box's colour (blue) is seen on top of it.
+    rgb = obs["color_heightmap"][0].numpy()[mask].astype(float).mean(0)
+    assert rgb[2] > rgb[0] + 30
