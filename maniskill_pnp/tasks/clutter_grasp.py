@@ -16,14 +16,12 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
-import gymnasium as gym
 import numpy as np
 import sapien
 import torch
 from gymnasium import spaces
 
 from mani_skill.agents.robots import Panda
-from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.registration import register_env
@@ -32,6 +30,7 @@ from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from maniskill_pnp.planning.primitives import MotionPrimitives, grasp_pose
 from maniskill_pnp.planning.robot import panda_spec
 from maniskill_pnp.tasks.bin import build_bin
+from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_action
 from maniskill_pnp.tasks.clutter import DENSITY_PRESETS, object_status, random_specs, sample_clutter, settle, validate_layout
 from maniskill_pnp.tasks.heightmap import heightmaps_from_sensors
 from maniskill_pnp.tasks.objects import KINDS, build_object
@@ -51,7 +50,7 @@ def camera_clear_home() -> np.ndarray:
 
 
 @register_env("ClutterGrasp-v1", max_episode_steps=None)
-class ClutterGraspEnv(BaseEnv):
+class ClutterGraspEnv(PrimitiveStepEnv):
     """**Task Description:**
     A loosely packed clutter of regular and irregular objects lies in the workspace in front of the Panda; a bin
     stands beside it. Each step the agent picks one flat index over (rotation, row, col) of the 224×224
@@ -140,9 +139,7 @@ class ClutterGraspEnv(BaseEnv):
         self.prims: MotionPrimitives | None = None
         self._episode_ready = False
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
-        self.single_action_space = spaces.Discrete(self.action_layout.size)
-        self.action_space = spaces.Discrete(self.action_layout.size)
-        self._orig_single_action_space = self.single_action_space
+        self._use_discrete_actions(self.action_layout.size)
 
     # ------------------------------------------------------------------ spaces
     @property
@@ -229,11 +226,6 @@ class ClutterGraspEnv(BaseEnv):
             self.prims.executor.reset()
 
     # ------------------------------------------------------------------ reset and step
-    def reset(self, seed=None, options=None):
-        """ManiSkill's reset, plus gymnasium's ``np_random`` seeded from the same seed."""
-        gym.Env.reset(self, seed=None if seed is None else int(np.ravel(seed)[0]))
-        return super().reset(seed=seed, options=options)
-
     def _primitives(self) -> MotionPrimitives:
         if self.prims is None:
             arm = replace(panda_spec(), home=self.home_qpos.copy())
@@ -292,17 +284,9 @@ class ClutterGraspEnv(BaseEnv):
     def _check_action(self, action) -> int:
         """The action as an int in the valid range; ValueError naming the range otherwise (before anything moves)."""
         n = self.action_layout.size
-        valid = f"one integer flat index in 0..{n - 1} over (rotation, row, col) = {self.action_layout.shape[1:]}"
-        a = action.detach().cpu().numpy() if isinstance(action, torch.Tensor) else np.asarray(action)
-        if a.size != 1 or a.ndim > 1:
-            raise ValueError(f"action must be {valid} (shape () or (1,)), got shape {a.shape}")
-        a = a.reshape(())
-        if a.dtype == np.bool_ or not np.issubdtype(a.dtype, np.integer):
-            raise ValueError(f"action must be {valid}, got {a.item()!r} of dtype {a.dtype}")
-        a = int(a)
-        if not 0 <= a < n:
-            raise ValueError(f"action {a} out of range: must be {valid}")
-        return a
+        return parse_discrete_action(
+            action, n, f"one integer flat index in 0..{n - 1} over (rotation, row, col) = {self.action_layout.shape[1:]}"
+        )
 
     # ------------------------------------------------------------------ observation, evaluation, reward
     def _in_workspace(self) -> list[str]:

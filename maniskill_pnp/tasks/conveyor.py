@@ -17,14 +17,12 @@ object that is not picked falls off past ``belt_y[1]`` onto the table and is mis
 
 from __future__ import annotations
 
-import gymnasium as gym
 import numpy as np
 import sapien
 import torch
 from gymnasium import spaces
 
 from mani_skill.agents.robots import Panda
-from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.registration import register_env
@@ -32,6 +30,7 @@ from mani_skill.utils.scene_builder.table import TableSceneBuilder
 
 from maniskill_pnp.planning.primitives import MotionPrimitives, grasp_pose
 from maniskill_pnp.tasks.bin import build_bin
+from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_action
 from maniskill_pnp.tasks.conveyor_config import (
     ALIGNMENTS, OBJECT_KINDS, REWARD_SCHEMES, SPEEDS, ConveyorSpec,
 )
@@ -56,7 +55,7 @@ def _check_choice(name: str, value: str | None, valid: tuple[str, ...]) -> None:
 
 
 @register_env("ConveyorProximity-v1", max_episode_steps=10)
-class ConveyorProximityEnv(BaseEnv):
+class ConveyorProximityEnv(PrimitiveStepEnv):
     """**Task Description:**
     Objects (cuboid, cylinder or sphere) ride a conveyor belt toward the Panda one at a time. Ray-type proximity
     sensors at the workspace end of the belt sense the arrival, the alignment across the belt and the belt speed.
@@ -117,9 +116,7 @@ class ConveyorProximityEnv(BaseEnv):
         self.prims: MotionPrimitives | None = None
         self._episode_ready = False
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
-        self.single_action_space = spaces.Discrete(self.conveyor.action_n)
-        self.action_space = spaces.Discrete(self.conveyor.action_n)
-        self._orig_single_action_space = self.single_action_space
+        self._use_discrete_actions(self.conveyor.action_n)
 
     # ------------------------------------------------------------------ spaces
     @property
@@ -304,11 +301,6 @@ class ConveyorProximityEnv(BaseEnv):
                 self.ray_log["speed_estimate"] = v
 
     # ------------------------------------------------------------------ reset and step
-    def reset(self, seed=None, options=None):
-        """ManiSkill's reset, plus gymnasium's ``np_random`` seeded from the same seed (checkers and wrappers use it)."""
-        gym.Env.reset(self, seed=None if seed is None else int(np.ravel(seed)[0]))
-        return super().reset(seed=seed, options=options)
-
     def step(self, action):
         if not self._episode_ready:
             raise RuntimeError("call reset() before step()")
@@ -362,20 +354,8 @@ class ConveyorProximityEnv(BaseEnv):
 
     def _check_action(self, action) -> int:
         """The action as a phase-valid int index; ValueError (naming the phase and valid range) otherwise."""
-        a = action
-        if isinstance(a, torch.Tensor):
-            a = a.detach().cpu().numpy()
-        a = np.asarray(a)
-        if a.size != 1:
-            raise ValueError(f"action must be one integer index (shape () or (1,)), got shape {a.shape}")
-        a = a.reshape(())
-        if a.dtype == np.bool_ or not np.issubdtype(a.dtype, np.integer):
-            raise ValueError(f"action must be an integer index, got {a.item()!r} of dtype {a.dtype}")
-        a = int(a)
         n = self.conveyor.num_actions[self.phase]
-        if not 0 <= a < n:
-            raise ValueError(f"action {a} is invalid in phase {self.phase!r}: valid indices are 0..{n - 1}")
-        return a
+        return parse_discrete_action(action, n, f"an integer index valid in phase {self.phase!r}: 0..{n - 1}")
 
     def _wait_for_arrival(self):
         """Hold the arm still and let the belt run until the second gate fires (or the object is gone)."""
