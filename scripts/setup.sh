@@ -7,7 +7,8 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 venv="${MANISKILL_PNP_VENV:-$root/.venv}"
-extras="${1:-}"   # e.g. "test"
+# One environment serves both the main job and the tests, so either command finds it ready after the other.
+extras="test"
 
 log() { printf '[setup] %s\n' "$*" >&2; }
 
