@@ -43,9 +43,10 @@ def run(cfg: PrimitivesBenchConfig) -> dict:
     env = gym.make("CubeToBin-v1", obs_mode="state", control_mode="pd_joint_pos", **default_backends())
     pick_plan, walls, steps, successes, failures = [], [], [], 0, []
     t_all = time.perf_counter()
+    prims = MotionPrimitives(env, static_actors=STATIC_ACTORS, seed=0)  # one instance per run, as the tasks do
     for seed in tqdm(range(cfg.episodes), desc="pick-and-place", unit="ep"):
         env.reset(seed=seed)
-        prims = MotionPrimitives(env, static_actors=STATIC_ACTORS, seed=seed)
+        prims.reset()
         t0 = time.perf_counter()
         pick = prims.pick(cube_grasp_pose(env), target="cube")
         results = [pick]

@@ -155,6 +155,14 @@ class MotionPrimitives:
         self._planning_time = 0.0
         self.held: str | None = None
 
+    def reset(self) -> None:
+        """Forget per-episode state (held object, last gripper command); call after every ``env.reset``.
+
+        The collision model, IK and the plan cache stay: one instance serves a whole training run.
+        """
+        self.held = None
+        self.executor.reset()
+
     # ================================================================== primitives
     def pick(self, pose: sapien.Pose, target: str | None = None, *, candidates: Collection[str] | None = None) -> PrimitiveResult:
         """Pre-grasp above ``pose``, straight descent, close the jaws, lift.

@@ -222,8 +222,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.last = dict(grasp_success=False, place_success=False, stage="reset", reason="", action=-1)
         self._episode_ready = True
         if self.prims is not None:
-            self.prims.held = None
-            self.prims.executor.reset()
+            self.prims.reset()
 
     # ------------------------------------------------------------------ reset and step
     def _primitives(self) -> MotionPrimitives:

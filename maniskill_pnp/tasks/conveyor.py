@@ -231,8 +231,7 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
         self.results: list[PrimitiveResult] = []
         self._episode_ready = True
         if self.prims is not None:
-            self.prims.held = None
-            self.prims.executor.reset()
+            self.prims.reset()
 
     # ------------------------------------------------------------------ belt and sensors
     def _on_belt(self, p: np.ndarray) -> bool:
