@@ -1,0 +1,263 @@
+"""Fully convolutional pixelwise Q networks over rotated RGB-D heightmaps (thesis Parts II and III).
+
+A :class:`PixelQNetwork` maps a heightmap batch ``(B, 4, H, W)`` (RGB in 0..1, height above the table in metres) to
+one Q map per rotation, ``(B, R, H, W)``. Its structure follows the thesis (and VPG):
+
+* the heightmap is rotated ``R`` times so that the jaw direction of rotation ``r`` becomes the image's +col axis
+  (the input is first zero-padded to a square at least as large as its diagonal, so no content is cut);
+* all ``B * R`` rotated images go through the network in one batch;
+* two trunks, one on the colour image and one on the height channel cloned to 3 channels (``use_depth=False``
+  keeps the colour trunk only); their feature maps are concatenated;
+* a head of two 1x1 convolutions, each preceded by BatchNorm + ReLU, the last giving one channel;
+* bilinear upsampling to the padded resolution, rotation back, and a centre crop to ``H x W``.
+
+Rotation ``r`` is the one of :class:`~maniskill_pnp.tasks.workspace.WorkspaceSpec`: jaws closing along
+``yaw = r * 2*pi / R`` from world x, where the heightmap's col axis is world x and its row axis world y.
+
+:class:`MultiPrimitiveQNetwork` holds one :class:`PixelQNetwork` per primitive (grasp; left slide; right slide) and
+stacks their maps to ``(B, P, R, H, W)``, whose row-major flat index is the one of
+:class:`~maniskill_pnp.tasks.pixel_action.PixelActionLayout`.
+
+Backbones (``backbone=``):
+
+* ``"densenet121"`` (thesis default): ``torchvision.models.densenet121(memory_efficient=True).features``,
+  1024 channels at stride 32.
+* ``"resnet101"`` (the thesis' ablation): ResNet-101 up to ``layer4``, 2048 channels at stride 32.
+* ``"small"`` (CPU presets and tests): ResNet-18 truncated after ``layer2``, 128 channels at stride 8. It keeps
+  the torchvision weight layout (so a local ResNet-18 checkpoint can initialise it), costs about a tenth of a
+  DenseNet-121 trunk per pixel and, at stride 8, still gives usable maps on small heightmaps.
+
+Pretrained weights are never downloaded: pass ``pretrained_path``, a local file holding the ``state_dict`` of the
+complete torchvision classifier of the chosen backbone; it is loaded strictly, then truncated to the trunk.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import torch
+import torch.nn.functional as F
+import torchvision
+from torch import nn
+
+#: ImageNet statistics, used to normalise both trunks' inputs (as torchvision's pretrained weights expect).
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+@dataclass(frozen=True)
+class _Backbone:
+    build: Callable[[], nn.Module]
+    truncate: Callable[[nn.Module], nn.Module]
+    channels: int
+    stride: int
+
+
+def _resnet_trunk(last_layer: str) -> Callable[[nn.Module], nn.Module]:
+    def truncate(model: nn.Module) -> nn.Module:
+        names = ["conv1", "bn1", "relu", "maxpool", "layer1", "layer2", "layer3", "layer4"]
+        names = names[: names.index(last_layer) + 1]
+        return nn.Sequential(*[getattr(model, n) for n in names])
+
+    return truncate
+
+
+BACKBONES: dict[str, _Backbone] = {
+    "densenet121": _Backbone(
+        build=lambda: torchvision.models.densenet121(weights=None, memory_efficient=True),
+        truncate=lambda m: m.features,
+        channels=1024,
+        stride=32,
+    ),
+    "resnet101": _Backbone(
+        build=lambda: torchvision.models.resnet101(weights=None),
+        truncate=_resnet_trunk("layer4"),
+        channels=2048,
+        stride=32,
+    ),
+    "small": _Backbone(
+        build=lambda: torchvision.models.resnet18(weights=None),
+        truncate=_resnet_trunk("layer2"),
+        channels=128,
+        stride=8,
+    ),
+}
+
+
+def make_trunk(backbone: str, pretrained_path: str | os.PathLike | None = None) -> nn.Module:
+    """A feature trunk of ``backbone`` (a key of :data:`BACKBONES`), optionally initialised from a local file.
+
+    Raises:
+        ValueError: unknown backbone.
+        FileNotFoundError: ``pretrained_path`` does not exist.
+    """
+    if backbone not in BACKBONES:
+        raise ValueError(f"backbone must be one of {sorted(BACKBONES)}, got {backbone!r}")
+    spec = BACKBONES[backbone]
+    model = spec.build()
+    if pretrained_path is not None:
+        if not os.path.isfile(pretrained_path):
+            raise FileNotFoundError(f"pretrained weights not found: {pretrained_path}")
+        state = torch.load(pretrained_path, map_location="cpu", weights_only=True)
+        model.load_state_dict(state, strict=True)
+    return spec.truncate(model)
+
+
+def rotation_angles(num_rotations: int) -> torch.Tensor:
+    """Yaw (rad) of each rotation index: ``r * 2*pi / num_rotations``."""
+    return torch.arange(num_rotations, dtype=torch.float64) * (2 * math.pi / num_rotations)
+
+
+def rotate_images(images: torch.Tensor, angles: torch.Tensor, mode: str = "bilinear") -> torch.Tensor:
+    """Rotate square images ``(N, C, S, S)`` about their centre; image ``n`` by ``angles[n]`` (rad).
+
+    Angles are measured in the (col, row) frame, i.e. from world x towards world y. Positive ``angle`` rotates
+    the *frame*: the output's +col axis points along the input direction ``angle``, so ``rotate_images(x, a)``
+    turns the content by ``-a``. Pixels coming from outside the image are zero.
+    """
+    if images.shape[-1] != images.shape[-2]:
+        raise ValueError(f"rotate_images needs square images, got {tuple(images.shape[-2:])}")
+    a = angles.to(torch.float64)
+    cos, sin = torch.cos(a), torch.sin(a)
+    zero = torch.zeros_like(a)
+    # affine_grid's theta maps output normalised coords to input coords: input = Rot(angle) @ output.
+    theta = torch.stack([torch.stack([cos, -sin, zero], -1), torch.stack([sin, cos, zero], -1)], -2)
+    theta = theta.to(device=images.device, dtype=images.dtype)
+    grid = F.affine_grid(theta, list(images.shape), align_corners=False)
+    return F.grid_sample(images, grid, mode=mode, padding_mode="zeros", align_corners=False)
+
+
+def padded_size(height: int, width: int, multiple: int) -> int:
+    """Side of the square that holds an ``height x width`` image under any rotation.
+
+    At least the diagonal and of the same parity as both sides, so that the padding is symmetric and the centre
+    stays the centre (exact 90-degree equivariance); also a multiple of ``multiple`` (the trunk's stride) when that
+    parity allows it.
+    """
+    if (height - width) % 2:
+        raise ValueError(f"height and width must have the same parity, got {height}x{width}")
+    side = math.ceil(math.hypot(height, width))
+    side = max(side, height, width)
+    if multiple % 2 == 0 and height % 2:
+        multiple = 1  # an odd side cannot be padded symmetrically to an even multiple: keep the symmetry
+    while side % multiple or (side - height) % 2:
+        side += 1
+    return side
+
+
+class PixelQNetwork(nn.Module):
+    """Rotated fully convolutional Q network: ``(B, 4, H, W)`` heightmap -> ``(B, R, H, W)`` Q maps.
+
+    Args:
+        num_rotations: Number of rotations ``R`` (the thesis uses 16).
+        backbone: ``"densenet121"``, ``"resnet101"`` or ``"small"`` (see the module docstring).
+        use_depth: Keep the depth trunk (False: the thesis' "no depth" ablation, colour trunk only).
+        head_channels: Width of the hidden 1x1 convolution.
+        pretrained_path: Local ``state_dict`` of the full torchvision classifier, loaded into both trunks.
+        depth_mean: Subtracted from heights (m) before the depth trunk.
+        depth_std: Heights are divided by this (m) after ``depth_mean`` is subtracted.
+
+    Example:
+        >>> net = PixelQNetwork(num_rotations=4, backbone="small").eval()
+        >>> net(torch.zeros(2, 4, 32, 32)).shape
+        torch.Size([2, 4, 32, 32])
+    """
+
+    def __init__(
+        self,
+        *,
+        num_rotations: int = 16,
+        backbone: str = "densenet121",
+        use_depth: bool = True,
+        head_channels: int = 64,
+        pretrained_path: str | os.PathLike | None = None,
+        depth_mean: float = 0.01,
+        depth_std: float = 0.03,
+    ):
+        super().__init__()
+        if not isinstance(num_rotations, int) or isinstance(num_rotations, bool) or num_rotations <= 0:
+            raise ValueError(f"num_rotations must be a positive integer, got {num_rotations!r}")
+        if head_channels <= 0:
+            raise ValueError(f"head_channels must be positive, got {head_channels!r}")
+        if not depth_std > 0:
+            raise ValueError(f"depth_std must be > 0, got {depth_std!r}")
+        spec = BACKBONES.get(backbone)
+        if spec is None:
+            raise ValueError(f"backbone must be one of {sorted(BACKBONES)}, got {backbone!r}")
+        self.num_rotations = num_rotations
+        self.backbone = backbone
+        self.use_depth = use_depth
+        self.stride = spec.stride
+        self.depth_mean = float(depth_mean)
+        self.depth_std = float(depth_std)
+        self.color_trunk = make_trunk(backbone, pretrained_path)
+        self.depth_trunk = make_trunk(backbone, pretrained_path) if use_depth else None
+        features = spec.channels * (2 if use_depth else 1)
+        self.head = nn.Sequential(
+            nn.BatchNorm2d(features),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(features, head_channels, kernel_size=1, bias=False),
+            nn.BatchNorm2d(head_channels),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(head_channels, 1, kernel_size=1, bias=False),
+        )
+        self.register_buffer("angles", rotation_angles(num_rotations).float(), persistent=False)
+        self.register_buffer("rgb_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("rgb_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
+
+    def _features(self, heightmaps: torch.Tensor) -> torch.Tensor:
+        color = (heightmaps[:, :3] - self.rgb_mean) / self.rgb_std
+        feats = [self.color_trunk(color)]
+        if self.depth_trunk is not None:
+            depth = (heightmaps[:, 3:4] - self.depth_mean) / self.depth_std
+            depth = (depth.expand(-1, 3, -1, -1) - self.rgb_mean) / self.rgb_std
+            feats.append(self.depth_trunk(depth))
+        return torch.cat(feats, dim=1)
+
+    def forward(self, heightmaps: torch.Tensor) -> torch.Tensor:
+        """Q maps ``(*batch, R, H, W)`` of heightmaps ``(*batch, 4, H, W)``."""
+        if heightmaps.ndim < 4 or heightmaps.shape[-3] != 4:
+            raise ValueError(f"heightmaps must be (..., 4, H, W) (RGB + height), got {tuple(heightmaps.shape)}")
+        batch = heightmaps.shape[:-3]
+        H, W = heightmaps.shape[-2:]
+        x = heightmaps.reshape(-1, 4, H, W)
+        B, R = x.shape[0], self.num_rotations
+        S = padded_size(H, W, self.stride)
+        top, left = (S - H) // 2, (S - W) // 2
+        x = F.pad(x, (left, S - W - left, top, S - H - top))
+        # (B, R, 4, S, S) -> (B*R, 4, S, S): every rotation in one batch.
+        angles = self.angles.repeat(B)
+        x = rotate_images(x.repeat_interleave(R, dim=0), angles)
+        q = self.head(self._features(x))
+        q = F.interpolate(q, size=(S, S), mode="bilinear", align_corners=False)
+        q = rotate_images(q, -angles)
+        q = q[..., top : top + H, left : left + W]
+        return q.reshape(*batch, R, H, W)
+
+
+class MultiPrimitiveQNetwork(nn.Module):
+    """One :class:`PixelQNetwork` per primitive: ``(B, 4, H, W)`` -> ``(B, P, R, H, W)``.
+
+    Args:
+        primitives: Primitive names, in action-index order (e.g. ``("grasp", "left_slide", "right_slide")``).
+        **net_kwargs: Keyword arguments of every :class:`PixelQNetwork`.
+    """
+
+    def __init__(self, primitives: Sequence[str] = ("grasp",), **net_kwargs):
+        super().__init__()
+        primitives = tuple(primitives)
+        if not primitives or len(set(primitives)) != len(primitives):
+            raise ValueError(f"primitives must be a non-empty sequence of unique names, got {primitives!r}")
+        self.primitives = primitives
+        self.nets = nn.ModuleDict({name: PixelQNetwork(**net_kwargs) for name in primitives})
+
+    @property
+    def num_rotations(self) -> int:
+        return self.nets[self.primitives[0]].num_rotations
+
+    def forward(self, heightmaps: torch.Tensor) -> torch.Tensor:
+        """Q maps ``(*batch, P, R, H, W)`` of heightmaps ``(*batch, 4, H, W)``."""
+        return torch.stack([self.nets[name](heightmaps) for name in self.primitives], dim=-4)
