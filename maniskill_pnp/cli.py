@@ -50,6 +50,45 @@ def _eval_conveyor(args) -> None:
         raise SystemExit(f"eval-conveyor: {e}") from e
 
 
+def _train_clutter(args) -> None:
+    import dataclasses
+
+    from maniskill_pnp.agents.clutter_recipe import ClutterConfig, main
+
+    overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(ClutterConfig)
+                 if f.name != "preset" and getattr(args, f.name, None) is not None}
+    try:
+        cfg = ClutterConfig.from_preset(args.preset, **overrides)
+    except ValueError as e:
+        raise SystemExit(f"train-clutter: {e}") from e
+    print(json.dumps(main(cfg), indent=2))
+
+
+def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:
+    """``--preset`` and one option per ClutterConfig field (default: the preset's value); help = field docstring."""
+    import dataclasses
+
+    from maniskill_pnp.agents.clutter_recipe import PRESETS, ClutterConfig, clutter_field_docs
+    from maniskill_pnp.agents.pixel_fcn import BACKBONES
+
+    docs = clutter_field_docs()
+    parser.add_argument("--preset", choices=list(PRESETS), default="cpu-small", help=docs["preset"] + " (default: %(default)s)")
+    for f in dataclasses.fields(ClutterConfig):
+        if f.name == "preset":
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        help_text = docs.get(f.name, "").replace("%", "%%") + " (default: the preset's value)"
+        if isinstance(f.default, bool):
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+        elif f.name == "out":
+            parser.add_argument(flag, type=Path, default=None, help=help_text)
+        elif f.name == "pretrained_path":
+            parser.add_argument(flag, type=str, default=None, help=help_text)
+        else:
+            choices = sorted(BACKBONES) if f.name == "backbone" else None
+            parser.add_argument(flag, type=type(f.default), choices=choices, default=None, help=help_text)
+
+
 def _conveyor_fields() -> list[str]:
     from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig
     import dataclasses
@@ -104,6 +143,10 @@ def build_parser() -> argparse.ArgumentParser:
     train = sub.add_parser("train-conveyor", help="train tabular Q-learning or SARSA on ConveyorProximity-v1 (thesis ch. 4)")
     _add_conveyor_train_args(train)
     train.set_defaults(func=_train_conveyor)
+
+    clutter = sub.add_parser("train-clutter", help="train pixelwise DQN grasping on ClutterGrasp-v1 (thesis part II)")
+    _add_clutter_train_args(clutter)
+    clutter.set_defaults(func=_train_clutter)
 
     ev = sub.add_parser("eval-conveyor", help="greedy evaluation of saved conveyor Q-tables: per-category tables, random test cases 1-5, curves")
     ev.add_argument("checkpoints", nargs="+", type=Path, help="qtable.pt files (or run folders holding one) to evaluate")

@@ -1,0 +1,407 @@
+"""Recipe: pixelwise DQN grasping on ``ClutterGrasp-v1`` (thesis part II), on TorchRL.
+
+One agent step is one whole grasp attempt: the ε-greedy actor picks the argmax flat index over (rotation, row, col)
+of the Q maps of the current heightmaps; the env grasps there and places a grasped object in the bin. After every
+step the transition goes into a prioritized replay, one batch is sampled and one SGD step is taken on the pixelwise
+DQN loss (only the executed pixel is trained), and the sampled priorities are refreshed with the new TD errors.
+
+Run it with ``python -m maniskill_pnp.cli train-clutter --preset cpu-small --seed 1``; a run folder
+``<out>/<run_name>/`` receives ``config.json``, ``checkpoint.pt`` (written atomically every ``checkpoint_interval``
+steps and at the end), ``train_summary.json`` and the CSV logs (``scalars/train/grasp_success.csv`` ...).
+``--resume`` continues from the run folder's checkpoint (model, optimizer, target network, ε, step and episode
+counters, RNG states). The replay buffer's *contents* are not checkpointed (about 0.5 MB per transition at 224 px);
+a resumed run refills it, and the checkpoint keeps the replay metadata (its size and priorities' maximum at save).
+
+Metric: ``grasp_success``, the running fraction of grasp attempts that lifted an object (reward >= 0.5) over the
+last ``success_window`` attempts of the ε-greedy behaviour.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import random
+import shutil
+import time
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.envs.utils import ExplorationType
+from torchrl.objectives import HardUpdate
+from tqdm import tqdm
+
+from maniskill_pnp.agents.conveyor_recipe import atomic_write_bytes, field_docs, make_logger
+from maniskill_pnp.agents.pixel_fcn import BACKBONES, MultiPrimitiveQNetwork
+from maniskill_pnp.agents.pixel_loss import PixelDQNLoss
+from maniskill_pnp.agents.pixel_policy import heightmap_input, make_pixel_policy
+from maniskill_pnp.agents.pixel_replay import make_pixel_replay, pack_transition, unpack_transition
+
+ENV_ID = "ClutterGrasp-v1"
+CHECKPOINT_FORMAT = "maniskill_pnp.clutter_dqn/1"
+#: Reward of a step whose grasp lifted an object (1: placed in the bin; 0.5: grasped, not placed).
+GRASP_REWARD = 0.5
+#: Fields that fix the network's shape or the task: a resumed run must keep them.
+ARCHITECTURE_FIELDS = ("backbone", "use_depth", "head_channels", "num_rotations", "heightmap_size", "workspace_side")
+
+
+@dataclass(frozen=True)
+class ClutterConfig:
+    """Everything a clutter-grasping DQN run depends on; saved as ``config.json`` in the run folder.
+
+    The defaults are the ``cpu-small`` preset; :data:`PRESETS` holds the overrides of each preset.
+    """
+
+    preset: str = "cpu-small"
+    """Name of the preset these values started from (part of the run name)."""
+    backbone: str = "small"
+    """Feature trunk of the Q network: "densenet121" (thesis), "resnet101" or "small" (ResNet-18 to layer2)."""
+    pretrained_path: str | None = None
+    """Local state_dict of the full torchvision classifier of the backbone (never downloaded); None: random init."""
+    use_depth: bool = True
+    """Keep the depth trunk beside the colour trunk (False: the thesis' colour-only ablation)."""
+    head_channels: int = 64
+    """Width of the hidden 1x1 convolution of the Q head."""
+    num_rotations: int = 4
+    """Grasp yaws evenly spaced over 360 degrees (the thesis uses 16)."""
+    heightmap_size: int = 64
+    """Heightmap pixels per side; the pixel size is ``workspace_side / heightmap_size``."""
+    workspace_side: float = 0.448
+    """Side (m) of the square workspace the heightmap covers (the thesis: 224 px of 2 mm)."""
+    num_objects: int = 3
+    """Objects dropped into the workspace each episode."""
+    steps: int = 300
+    """Grasp attempts (env steps) to train for, counted over resumes."""
+    episodes: int = 0
+    """Stop after this many finished episodes as well (0: no episode limit)."""
+    gamma: float = 0.5
+    """Discount of the DQN target ``r + gamma * max Q'(s')``."""
+    delay_value: bool = True
+    """Bootstrap from a target network synced by HardUpdate every ``target_update_interval`` updates."""
+    target_update_interval: int = 100
+    """SGD updates between two hard target-network syncs (used with ``delay_value``)."""
+    double_dqn: bool = False
+    """Double DQN bootstrap (needs ``delay_value``)."""
+    lr: float = 1e-2
+    """SGD learning rate."""
+    momentum: float = 0.9
+    """SGD momentum."""
+    weight_decay: float = 1e-3
+    """SGD weight decay (L2)."""
+    batch_size: int = 1
+    """Transitions per sampled replay batch (one SGD step per env step)."""
+    learning_starts: int = 1
+    """Transitions in the replay before the first SGD step."""
+    replay_capacity: int = 2000
+    """Transitions the prioritized replay keeps (oldest overwritten first)."""
+    replay_alpha: float = 0.6
+    """Priority exponent of the replay (0: uniform)."""
+    replay_beta: float = 0.4
+    """Importance-sampling exponent of the replay's priority weights."""
+    eps_start: float = 0.3
+    """ε of the ε-greedy behaviour at step 0."""
+    eps_end: float = 0.1
+    """ε after ``eps_decay_steps`` steps (linear decay, then constant)."""
+    eps_decay_steps: int = 200
+    """Steps over which ε decays linearly from ``eps_start`` to ``eps_end``."""
+    seed: int = 0
+    """Seed of the network initialisation, the episodes, the planner and the exploration."""
+    checkpoint_interval: int = 50
+    """Write the checkpoint atomically every this many steps (and at the end)."""
+    log_interval: int = 10
+    """Log the training metrics every this many steps."""
+    success_window: int = 50
+    """Grasp attempts in the running grasp success shown on the progress bar and logged."""
+    resume: bool = False
+    """Continue from the run folder's checkpoint.pt (its architecture fields must match this config)."""
+    out: Path = Path("runs/clutter")
+    """Parent folder of the run folder ``<preset>_<backbone>_r<rotations>_px<size>_seed<seed>``."""
+
+    def __post_init__(self):
+        object.__setattr__(self, "out", Path(self.out))
+        if self.preset not in PRESETS:
+            raise ValueError(f"unknown preset {self.preset!r}; valid: {list(PRESETS)}")
+        if self.backbone not in BACKBONES:
+            raise ValueError(f"unknown backbone {self.backbone!r}; valid: {sorted(BACKBONES)}")
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
+        if self.double_dqn and not self.delay_value:
+            raise ValueError("double_dqn needs delay_value (a target network)")
+        if not 0.0 <= self.eps_end <= self.eps_start <= 1.0:
+            raise ValueError(f"need 0 <= eps_end <= eps_start <= 1, got {self.eps_start} -> {self.eps_end}")
+        if not self.workspace_side > 0 or not self.lr > 0:
+            raise ValueError(f"workspace_side and lr must be > 0, got {self.workspace_side}, {self.lr}")
+        positive = ("head_channels", "num_rotations", "heightmap_size", "num_objects", "steps", "target_update_interval",
+                    "batch_size", "learning_starts", "replay_capacity", "eps_decay_steps", "checkpoint_interval",
+                    "log_interval", "success_window")
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.episodes < 0:
+            raise ValueError(f"episodes must be >= 0, got {self.episodes}")
+
+    @classmethod
+    def from_preset(cls, name: str, **overrides) -> ClutterConfig:
+        """The preset ``name`` (a key of :data:`PRESETS`) with ``overrides`` applied."""
+        if name not in PRESETS:
+            raise ValueError(f"unknown preset {name!r}; valid: {list(PRESETS)}")
+        return cls(**{**PRESETS[name], **overrides, "preset": name})
+
+    @property
+    def run_name(self) -> str:
+        return f"{self.preset}_{self.backbone}_r{self.num_rotations}_px{self.heightmap_size}_seed{self.seed}"
+
+    @property
+    def run_dir(self) -> Path:
+        return self.out / self.run_name
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["out"] = str(self.out)
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict) -> ClutterConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown config fields {unknown}; known: {sorted(known)}")
+        return cls(**d)
+
+
+#: Overrides of the dataclass defaults per preset.
+PRESETS: dict[str, dict] = {
+    # Thesis part II: DenseNet-121, 16 rotations, 224 px of 2 mm, 3000 episodes of 10 objects.
+    "thesis": dict(
+        backbone="densenet121", num_rotations=16, heightmap_size=224, num_objects=10, episodes=3000, steps=90_000,
+        replay_capacity=50_000, eps_decay_steps=10_000, target_update_interval=500, checkpoint_interval=500,
+        log_interval=50, success_window=200,
+    ),
+    "cpu-small": {},
+}
+
+
+def clutter_field_docs() -> dict[str, str]:
+    """The docstring of each :class:`ClutterConfig` field (the CLI's help text)."""
+    return field_docs(ClutterConfig)
+
+
+# ----------------------------------------------------------------------------- factories
+def make_env(cfg: ClutterConfig):
+    """ClutterGrasp-v1 as a TorchRL env, with the config's heightmap size, rotations and object count."""
+    from maniskill_pnp.tasks.workspace import WorkspaceSpec
+    from maniskill_pnp.torchrl_env import make_torchrl_env
+
+    import maniskill_pnp  # noqa: F401  (registers the task ids)
+
+    workspace = WorkspaceSpec(
+        heightmap_size=cfg.heightmap_size, pixel_size=cfg.workspace_side / cfg.heightmap_size, num_rotations=cfg.num_rotations
+    )
+    env = make_torchrl_env(
+        ENV_ID, num_objects=cfg.num_objects, workspace=workspace, planner_seed=cfg.seed,
+        sim_backend="physx_cpu", render_backend="cpu",
+    )
+    return env
+
+
+def make_model(cfg: ClutterConfig) -> MultiPrimitiveQNetwork:
+    """The grasp-only pixel Q network: ``(N, 4, H, W) -> (N, 1, R, H, W)``."""
+    return MultiPrimitiveQNetwork(
+        ("grasp",), num_rotations=cfg.num_rotations, backbone=cfg.backbone, use_depth=cfg.use_depth,
+        head_channels=cfg.head_channels, pretrained_path=cfg.pretrained_path,
+    )
+
+
+def to_transitions(batch: TensorDictBase) -> TensorDict:
+    """Flat collector frames -> the transitions the loss reads (heightmap ``"observation"`` built from the env keys)."""
+    nxt = batch.get("next")
+    n = batch.batch_size[0]
+    return TensorDict(
+        {
+            "observation": heightmap_input(batch.get("color_heightmap"), batch.get("depth_heightmap")),
+            "action": batch.get("action").reshape(n),
+            "next": {
+                "observation": heightmap_input(nxt.get("color_heightmap"), nxt.get("depth_heightmap")),
+                "reward": nxt.get("reward").reshape(n),
+                "terminated": nxt.get("terminated").reshape(n),
+                "done": nxt.get("done").reshape(n),
+            },
+        },
+        batch_size=[n],
+    )
+
+
+# ----------------------------------------------------------------------------- checkpoints
+def _rng_state() -> dict:
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    return dict(
+        torch=torch.get_rng_state(), python=random.getstate(),
+        numpy=dict(kind=kind, keys=torch.from_numpy(keys.astype(np.int64)), pos=pos, has_gauss=has_gauss, cached=cached),
+    )
+
+
+def _set_rng_state(state: dict) -> None:
+    torch.set_rng_state(state["torch"])
+    random.setstate(state["python"])
+    n = state["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached"]))
+
+
+def save_checkpoint(path: Path, *, cfg, model, loss, optimizer, egreedy, counters: dict, replay_meta: dict) -> None:
+    """``torch.save`` everything a resumed run needs, atomically (temp file + ``os.replace``)."""
+    payload = dict(
+        format=CHECKPOINT_FORMAT, config=cfg.to_json(), model=model.state_dict(), loss=loss.state_dict(),
+        optimizer=optimizer.state_dict(), egreedy=egreedy.state_dict(), counters=dict(counters),
+        rng=_rng_state(), replay=dict(replay_meta),
+    )
+    atomic_write_bytes(path, lambda f: torch.save(payload, f))
+
+
+def load_checkpoint(path: Path) -> dict:
+    """The payload of :func:`save_checkpoint`; ValueError naming the file if it is not one."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises several types for truncated / foreign files
+        raise ValueError(f"checkpoint {path} is unreadable (truncated or not a torch.save file): {e}") from e
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"checkpoint {path} is not a clutter DQN checkpoint (expected format {CHECKPOINT_FORMAT!r})")
+    return payload
+
+
+# ----------------------------------------------------------------------------- main
+def main(cfg: ClutterConfig) -> dict:
+    """Train one pixelwise DQN grasping agent; returns a summary (run folder, steps, episodes, grasp success)."""
+    run_dir = cfg.run_dir
+    ckpt_path = run_dir / "checkpoint.pt"
+    payload = None
+    if cfg.resume:
+        payload = load_checkpoint(ckpt_path)
+        saved = ClutterConfig.from_json(payload["config"])
+        changed = [f for f in ARCHITECTURE_FIELDS if getattr(saved, f) != getattr(cfg, f)]
+        if changed:
+            raise ValueError(f"cannot resume {ckpt_path}: {changed} differ from the checkpoint's config")
+    counters = dict(payload["counters"]) if payload else dict(steps=0, episodes=0, updates=0, grasps=0)
+    torch.manual_seed(cfg.seed)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(run_dir / "config.json", lambda f: f.write(json.dumps(cfg.to_json(), indent=2).encode()))
+
+    # 1. make the env (a fresh episode seed on resume, so finished episodes are not replayed)
+    env = make_env(cfg)
+    env.set_seed(cfg.seed + counters["episodes"])
+
+    # 2. make the model and its greedy / ε-greedy actors
+    model = make_model(cfg)
+    _, explore, egreedy = make_pixel_policy(
+        model, env.action_spec, eps_init=cfg.eps_start, eps_end=cfg.eps_end, annealing_num_steps=cfg.eps_decay_steps
+    )
+
+    # 3. make the prioritized replay (packed heightmaps, memory-mapped in the run folder; its contents are not
+    #    checkpointed, so the scratch files of an earlier run are removed)
+    shutil.rmtree(run_dir / "replay", ignore_errors=True)
+    replay = make_pixel_replay(
+        cfg.replay_capacity, run_dir / "replay", cfg.replay_alpha, cfg.replay_beta, batch_size=cfg.batch_size
+    )
+
+    # 4. make the loss, the target-network updater and the optimizer
+    loss = PixelDQNLoss(model, gamma=cfg.gamma, delay_value=cfg.delay_value, double_dqn=cfg.double_dqn)
+    updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval) if cfg.delay_value else None
+    optimizer = torch.optim.SGD(loss.parameters(), lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
+
+    if payload is not None:
+        model.load_state_dict(payload["model"])
+        loss.load_state_dict(payload["loss"])
+        optimizer.load_state_dict(payload["optimizer"])
+        egreedy.load_state_dict(payload["egreedy"])
+        _set_rng_state(payload["rng"])
+
+    # 5. make the collector (one grasp per batch, exploration on)
+    remaining = cfg.steps - counters["steps"]
+    summary = dict(run_dir=str(run_dir), start_step=counters["steps"])
+    if remaining <= 0 or (cfg.episodes and counters["episodes"] >= cfg.episodes):
+        env.close()
+        return dict(summary, **counters, note="nothing left to train")
+    model.eval()  # acting uses BatchNorm's running statistics; each SGD step switches to train mode and back
+    collector = Collector(
+        env, explore, frames_per_batch=1, total_frames=remaining,
+        exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
+    )
+
+    # 6. make the logger
+    logger = make_logger(run_dir)
+
+    def checkpoint() -> None:
+        replay_meta = dict(size=len(replay), capacity=cfg.replay_capacity, contents_saved=False)
+        save_checkpoint(ckpt_path, cfg=cfg, model=model, loss=loss, optimizer=optimizer, egreedy=egreedy,
+                        counters=counters, replay_meta=replay_meta)
+
+    # 7. main loop: collect one grasp, store it, one prioritized SGD step, refresh priorities, log, checkpoint
+    outcomes: deque[bool] = deque(maxlen=cfg.success_window)
+    last_loss = float("nan")
+    t0 = time.perf_counter()
+    bar = tqdm(total=cfg.steps, initial=counters["steps"], desc=f"clutter {cfg.run_name}", unit="grasp")
+    for batch in collector:
+        batch = batch.reshape(-1)
+        n = batch.numel()
+        egreedy.step(n)
+        transitions = to_transitions(batch)
+        replay.extend(pack_transition(transitions))
+        rewards = transitions.get(("next", "reward"))
+        grasped = (rewards >= GRASP_REWARD).tolist()
+        outcomes.extend(grasped)
+        counters["steps"] += n
+        counters["grasps"] += sum(grasped)
+        counters["episodes"] += int(transitions.get(("next", "done")).sum())
+
+        if len(replay) >= cfg.learning_starts:
+            model.train()
+            sample = unpack_transition(replay.sample())
+            loss_td = loss(sample)
+            optimizer.zero_grad(set_to_none=True)
+            loss_td["loss_qvalue"].backward()
+            optimizer.step()
+            if updater is not None:
+                updater.step()
+            replay.update_tensordict_priority(sample)
+            model.eval()
+            counters["updates"] += 1
+            last_loss = loss_td["loss_qvalue"].item()
+
+        running = sum(outcomes) / len(outcomes)
+        bar.update(n)
+        bar.set_postfix(grasp=f"{running:.2f}", eps=f"{egreedy.eps.item():.2f}", loss=f"{last_loss:.3g}",
+                        episodes=counters["episodes"])
+        step = counters["steps"]
+        done = step >= cfg.steps or (cfg.episodes and counters["episodes"] >= cfg.episodes)
+        if step % cfg.log_interval == 0 or done:
+            logger.log_scalar("train/loss", last_loss, step=step)
+            logger.log_scalar("train/epsilon", egreedy.eps.item(), step=step)
+            logger.log_scalar("train/reward", float(rewards.mean()), step=step)
+            logger.log_scalar("train/grasp_success", running, step=step)
+            logger.log_scalar("train/episodes", counters["episodes"], step=step)
+            logger.log_scalar("time/wall_s", time.perf_counter() - t0, step=step)
+        if step % cfg.checkpoint_interval == 0 or done:
+            checkpoint()
+        if done:
+            break
+    bar.close()
+    collector.shutdown()
+    env.close()
+
+    # 8. final checkpoint and summary
+    checkpoint()
+    summary.update(counters, running_grasp_success=sum(outcomes) / max(1, len(outcomes)), wall_s=time.perf_counter() - t0)
+    atomic_write_bytes(run_dir / "train_summary.json", lambda f: f.write(json.dumps(summary, indent=2).encode()))
+    return summary
+
+
+__all__ = [
+    "ClutterConfig", "PRESETS", "clutter_field_docs", "load_checkpoint", "main", "make_env", "make_model",
+    "save_checkpoint", "to_transitions",
+]

@@ -1,0 +1,98 @@
+"""The pixel actor (argmax layout, ε-greedy draws) and the clutter DQN recipe as a subprocess smoke run with resume."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import torch
+from tensordict import TensorDict
+from torch import nn
+from torchrl.data import Categorical
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from maniskill_pnp.agents.clutter_recipe import ClutterConfig, load_checkpoint
+from maniskill_pnp.agents.pixel_policy import make_pixel_policy
+from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+
+LAYOUT = PixelActionLayout(1, 2, 8, 8)
+
+
+class FixedMaps(nn.Module):
+    """Returns preset maps ``(N, P, R, H, W)`` whatever the input (checks only the input's shape)."""
+
+    def __init__(self, maps: torch.Tensor):
+        super().__init__()
+        self.maps = maps
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        assert x.shape == (self.maps.shape[0], 4, LAYOUT.height, LAYOUT.width)
+        return self.maps
+
+
+def heightmap_td(b: int) -> TensorDict:
+    return TensorDict(
+        color_heightmap=torch.randint(0, 256, (b, LAYOUT.height, LAYOUT.width, 3), dtype=torch.uint8),
+        depth_heightmap=torch.rand(b, LAYOUT.height, LAYOUT.width),
+        batch_size=[b],
+    )
+
+
+def test_greedy_action_decodes_to_the_maximum_of_the_maps():
+    torch.manual_seed(0)
+    maps = torch.randn(3, *LAYOUT.shape)
+    spec = Categorical(LAYOUT.size, shape=(3,))
+    greedy, _, _ = make_pixel_policy(FixedMaps(maps), spec, eps_init=0.3, eps_end=0.1, annealing_num_steps=10)
+    out = greedy(heightmap_td(3))
+    assert out["action_value"].shape == (3, LAYOUT.size)
+    for b, index in enumerate(out["action"].tolist()):
+        assert maps[b][LAYOUT.decode(index)] == maps[b].max()
+
+
+def test_epsilon_one_draws_valid_varied_indices():
+    maps = torch.zeros(64, *LAYOUT.shape)
+    maps[..., 0, 0] = 1.0  # the greedy action is index 0 of every rotation 0
+    spec = Categorical(LAYOUT.size, shape=(64,))
+    _, explore, egreedy = make_pixel_policy(FixedMaps(maps), spec, eps_init=1.0, eps_end=1.0, annealing_num_steps=10)
+    with set_exploration_type(ExplorationType.RANDOM):
+        actions = explore(heightmap_td(64))["action"]
+    assert actions.dtype == torch.int64 and actions.shape == (64,)
+    assert int(actions.min()) >= 0 and int(actions.max()) < LAYOUT.size
+    assert len(set(actions.tolist())) > 32
+    egreedy.step(5)
+    assert egreedy.eps.item() == 1.0
+
+
+def test_presets_resolve():
+    thesis = ClutterConfig.from_preset("thesis")
+    assert (thesis.backbone, thesis.num_rotations, thesis.heightmap_size, thesis.num_objects, thesis.episodes) == (
+        "densenet121", 16, 224, 10, 3000
+    )
+    assert ClutterConfig.from_preset("cpu-small", seed=3).run_name.endswith("seed3")
+
+
+def _train(out, steps: int, *extra: str) -> dict:
+    cmd = [
+        sys.executable, "-m", "maniskill_pnp.cli", "train-clutter", "--preset", "cpu-small", "--heightmap-size", "32",
+        "--num-rotations", "2", "--num-objects", "2", "--steps", str(steps), "--checkpoint-interval", "2",
+        "--log-interval", "1", "--out", str(out), *extra,
+    ]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout[proc.stdout.index("{"):])
+
+
+def test_smoke_run_then_resume(tmp_path):
+    first = _train(tmp_path, 3)
+    run_dir = tmp_path / "cpu-small_small_r2_px32_seed0"
+    assert first["steps"] == 3 and first["updates"] == 3
+    ckpt = load_checkpoint(run_dir / "checkpoint.pt")
+    assert ckpt["counters"]["steps"] == 3
+    assert json.loads((run_dir / "config.json").read_text())["heightmap_size"] == 32
+    assert (run_dir / "scalars" / "train" / "grasp_success.csv").is_file()
+
+    second = _train(tmp_path, 5, "--resume")
+    assert second["start_step"] == 3 and second["steps"] == 5 and second["updates"] == 5
+    assert load_checkpoint(run_dir / "checkpoint.pt")["counters"]["steps"] == 5
+    assert len((run_dir / "scalars" / "train" / "loss.csv").read_text().splitlines()) >= 5
