@@ -68,10 +68,11 @@ def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:
     """``--preset`` and one option per ClutterConfig field (default: the preset's value); help = field docstring."""
     import dataclasses
 
-    from maniskill_pnp.agents.clutter_recipe import PRESETS, ClutterConfig, clutter_field_docs
+    from maniskill_pnp.agents.clutter_recipe import PRESETS, ClutterConfig
+    from maniskill_pnp.agents.run_io import field_docs
     from maniskill_pnp.agents.pixel_fcn import BACKBONES
 
-    docs = clutter_field_docs()
+    docs = field_docs(ClutterConfig)
     parser.add_argument("--preset", choices=list(PRESETS), default="cpu-small", help=docs["preset"] + " (default: %(default)s)")
     for f in dataclasses.fields(ClutterConfig):
         if f.name == "preset":
@@ -100,12 +101,13 @@ def _add_conveyor_train_args(parser: argparse.ArgumentParser) -> None:
     """One option per ConveyorConfig field; the help text is the field's docstring."""
     import dataclasses
 
-    from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, field_docs
+    from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig
+    from maniskill_pnp.agents.run_io import field_docs
     from maniskill_pnp.agents.tabular import ALGORITHMS
     from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, REWARD_SCHEMES, SPEEDS
 
     choices = dict(algorithm=ALGORITHMS, reward_scheme=REWARD_SCHEMES, alignment=ALIGNMENTS, speed=SPEEDS)
-    docs = field_docs()
+    docs = field_docs(ConveyorConfig)
     for f in dataclasses.fields(ConveyorConfig):
         flag = "--" + f.name.replace("_", "-")
         help_text = docs.get(f.name, "").replace("%", "%%") + " (default: %(default)s)"

@@ -18,8 +18,6 @@ last ``success_window`` attempts of the ε-greedy behaviour.
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import random
 import shutil
 import time
@@ -35,7 +33,7 @@ from torchrl.envs.utils import ExplorationType
 from torchrl.objectives import HardUpdate
 from tqdm import tqdm
 
-from maniskill_pnp.agents.conveyor_recipe import atomic_write_bytes, field_docs, make_logger
+from maniskill_pnp.agents.run_io import RunConfig, atomic_write_bytes, make_logger, write_json
 from maniskill_pnp.agents.pixel_fcn import BACKBONES, MultiPrimitiveQNetwork
 from maniskill_pnp.agents.pixel_loss import PixelDQNLoss
 from maniskill_pnp.agents.pixel_policy import heightmap_input, make_pixel_policy
@@ -50,7 +48,7 @@ ARCHITECTURE_FIELDS = ("backbone", "use_depth", "head_channels", "num_rotations"
 
 
 @dataclass(frozen=True)
-class ClutterConfig:
+class ClutterConfig(RunConfig):
     """Everything a clutter-grasping DQN run depends on; saved as ``config.json`` in the run folder.
 
     The defaults are the ``cpu-small`` preset; :data:`PRESETS` holds the overrides of each preset.
@@ -155,23 +153,6 @@ class ClutterConfig:
     def run_name(self) -> str:
         return f"{self.preset}_{self.backbone}_r{self.num_rotations}_px{self.heightmap_size}_seed{self.seed}"
 
-    @property
-    def run_dir(self) -> Path:
-        return self.out / self.run_name
-
-    def to_json(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["out"] = str(self.out)
-        return d
-
-    @classmethod
-    def from_json(cls, d: dict) -> ClutterConfig:
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"unknown config fields {unknown}; known: {sorted(known)}")
-        return cls(**d)
-
 
 #: Overrides of the dataclass defaults per preset.
 PRESETS: dict[str, dict] = {
@@ -183,11 +164,6 @@ PRESETS: dict[str, dict] = {
     ),
     "cpu-small": {},
 }
-
-
-def clutter_field_docs() -> dict[str, str]:
-    """The docstring of each :class:`ClutterConfig` field (the CLI's help text)."""
-    return field_docs(ClutterConfig)
 
 
 # ----------------------------------------------------------------------------- factories
@@ -290,7 +266,7 @@ def main(cfg: ClutterConfig) -> dict:
     counters = dict(payload["counters"]) if payload else dict(steps=0, episodes=0, updates=0, grasps=0)
     torch.manual_seed(cfg.seed)
     run_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(run_dir / "config.json", lambda f: f.write(json.dumps(cfg.to_json(), indent=2).encode()))
+    write_json(run_dir / "config.json", cfg.to_json())
 
     # 1. make the env (a fresh episode seed on resume, so finished episodes are not replayed)
     env = make_env(cfg)
@@ -397,11 +373,11 @@ def main(cfg: ClutterConfig) -> dict:
     # 8. final checkpoint and summary
     checkpoint()
     summary.update(counters, running_grasp_success=sum(outcomes) / max(1, len(outcomes)), wall_s=time.perf_counter() - t0)
-    atomic_write_bytes(run_dir / "train_summary.json", lambda f: f.write(json.dumps(summary, indent=2).encode()))
+    write_json(run_dir / "train_summary.json", summary)
     return summary
 
 
 __all__ = [
-    "ClutterConfig", "PRESETS", "clutter_field_docs", "load_checkpoint", "main", "make_env", "make_model",
+    "ClutterConfig", "PRESETS", "load_checkpoint", "main", "make_env", "make_model",
     "save_checkpoint", "to_transitions",
 ]

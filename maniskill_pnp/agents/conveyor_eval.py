@@ -29,9 +29,8 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm import tqdm
 
-from maniskill_pnp.agents.conveyor_recipe import (
-    ConveyorConfig, atomic_write_bytes, load_qtable, make_env,
-)
+from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, load_qtable, make_env
+from maniskill_pnp.agents.run_io import atomic_write_bytes
 from maniskill_pnp.agents.tabular import QTable, make_qtable_policy
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, SPEEDS, ConveyorSpec
 

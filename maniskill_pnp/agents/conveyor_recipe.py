@@ -15,11 +15,6 @@ bin; during training it is the running mean over the last ``success_window`` epi
 
 from __future__ import annotations
 
-import dataclasses
-import importlib.util
-import json
-import os
-import tempfile
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -31,10 +26,9 @@ from torchrl.collectors import Collector
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.transforms import ActionMask
 from torchrl.envs.utils import ExplorationType
-from torchrl.record.loggers import Logger
-from torchrl.record.loggers.csv import CSVLogger
 from tqdm import tqdm
 
+from maniskill_pnp.agents.run_io import RunConfig, atomic_write_bytes, make_logger, write_json
 from maniskill_pnp.agents.tabular import ALGORITHMS, QTable, StateActionMask, bootstrap_for, make_qtable_policy, td_update
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, REWARD_SCHEMES, SPEEDS, ConveyorSpec
 
@@ -43,7 +37,7 @@ QTABLE_FORMAT = "maniskill_pnp.conveyor_qtable/1"
 
 
 @dataclass(frozen=True)
-class ConveyorConfig:
+class ConveyorConfig(RunConfig):
     """Everything a conveyor training run depends on; saved as ``config.json`` in the run folder.
 
     The thesis (ch. 4) gives no values for α, γ or ε; ε follows its chapter-5 schedule (0.3 → 0.1), α and γ are ours.
@@ -115,37 +109,6 @@ class ConveyorConfig:
     def run_name(self) -> str:
         return f"{self.algorithm}_{self.reward_scheme}_seed{self.seed}"
 
-    @property
-    def run_dir(self) -> Path:
-        return self.out / self.run_name
-
-    def to_json(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["out"], d["object_kinds"] = str(self.out), list(self.object_kinds)
-        return d
-
-    @classmethod
-    def from_json(cls, d: dict) -> ConveyorConfig:
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"unknown config fields {unknown}; known: {sorted(known)}")
-        return cls(**{**d, "object_kinds": tuple(d.get("object_kinds", OBJECT_KINDS))})
-
-
-def field_docs(cls=ConveyorConfig) -> dict[str, str]:
-    """The docstring under each field of a dataclass (the CLI's ``--help`` text: one source of truth)."""
-    import ast
-    import inspect
-    import textwrap
-
-    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
-    docs = {}
-    for node, after in zip(body, body[1:]):
-        if isinstance(node, ast.AnnAssign) and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
-            docs[node.target.id] = " ".join(str(after.value.value).split())
-    return docs
-
 
 # ----------------------------------------------------------------------------- factories
 def valid_action_table(spec: ConveyorSpec) -> torch.Tensor:
@@ -188,30 +151,6 @@ def make_env(cfg: ConveyorConfig, *, reward_scheme: str | None = None, **task_op
     return env
 
 
-def make_logger(run_dir: Path) -> Logger:
-    """CSV logs in the run folder; TensorBoard instead when the ``tensorboard`` package is importable."""
-    if importlib.util.find_spec("tensorboard") is not None:
-        from torchrl.record.loggers.tensorboard import TensorboardLogger
-
-        return TensorboardLogger(exp_name=run_dir.name, log_dir=str(run_dir.parent))
-    return CSVLogger(exp_name=run_dir.name, log_dir=str(run_dir.parent))
-
-
-def atomic_write_bytes(path: Path, write) -> None:
-    """Write through ``write(file)`` into a temp file beside ``path``, then ``os.replace`` it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
-
-
-def save_config(cfg: ConveyorConfig, path: Path) -> None:
-    atomic_write_bytes(path, lambda f: f.write(json.dumps(cfg.to_json(), indent=2).encode()))
 
 
 def save_qtable(table: QTable, cfg: ConveyorConfig, path: Path, *, spec: ConveyorSpec, extra: dict | None = None) -> None:
@@ -308,7 +247,7 @@ def main(cfg: ConveyorConfig) -> dict:
     spec = ConveyorSpec()
     run_dir = cfg.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
-    save_config(cfg, run_dir / "config.json")
+    write_json(run_dir / "config.json", cfg.to_json())
 
     # 1. make the env (TorchRL, with the phase action mask)
     env = make_env(cfg)
@@ -369,7 +308,7 @@ def main(cfg: ConveyorConfig) -> dict:
         final_running_success_rate=running, wall_s=wall,
     )
     save_qtable(table, cfg, run_dir / "qtable.pt", spec=spec, extra=dict(train=summary))
-    atomic_write_bytes(run_dir / "train_summary.json", lambda f: f.write(json.dumps(summary, indent=2).encode()))
+    write_json(run_dir / "train_summary.json", summary)
     return summary
 
 

@@ -1,0 +1,85 @@
+"""What every training recipe does with its run folder: config (de)serialization, field help texts, loggers and
+atomic writes. One place, so the conveyor and clutter recipes (and their evaluations) cannot drift apart."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import importlib.util
+import inspect
+import json
+import os
+import tempfile
+import textwrap
+from pathlib import Path
+
+from torchrl.record.loggers import Logger
+from torchrl.record.loggers.csv import CSVLogger
+
+
+class RunConfig:
+    """Mixin for a frozen recipe config dataclass with an ``out`` folder and a ``run_name`` property.
+
+    The dataclass's ``__post_init__`` normalizes field types (``out`` to a Path, sequences to tuples), so a config
+    read back from JSON equals the one that was saved.
+    """
+
+    out: Path
+    run_name: str
+
+    @property
+    def run_dir(self) -> Path:
+        """The run folder ``out / run_name``."""
+        return self.out / self.run_name
+
+    def to_json(self) -> dict:
+        """The config as a JSON-ready dict (paths as strings)."""
+        d = dataclasses.asdict(self)
+        d["out"] = str(self.out)
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict):
+        """The config from :meth:`to_json`'s dict; ValueError naming any unknown field."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown config fields {unknown}; known: {sorted(known)}")
+        return cls(**d)
+
+
+def field_docs(cls) -> dict[str, str]:
+    """The docstring under each field of a dataclass (the CLI's ``--help`` text: one source of truth)."""
+    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
+    docs = {}
+    for node, after in zip(body, body[1:]):
+        if isinstance(node, ast.AnnAssign) and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
+            docs[node.target.id] = " ".join(str(after.value.value).split())
+    return docs
+
+
+def make_logger(run_dir: Path) -> Logger:
+    """CSV logs in the run folder; TensorBoard instead when the ``tensorboard`` package is importable."""
+    if importlib.util.find_spec("tensorboard") is not None:
+        from torchrl.record.loggers.tensorboard import TensorboardLogger
+
+        return TensorboardLogger(exp_name=run_dir.name, log_dir=str(run_dir.parent))
+    return CSVLogger(exp_name=run_dir.name, log_dir=str(run_dir.parent))
+
+
+def atomic_write_bytes(path: Path, write) -> None:
+    """Write through ``write(file)`` into a temp file beside ``path``, then ``os.replace`` it into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def write_json(path: Path, obj) -> None:
+    """``obj`` as indented JSON at ``path``, written atomically."""
+    atomic_write_bytes(path, lambda f: f.write(json.dumps(obj, indent=2).encode()))
