@@ -28,7 +28,7 @@ from mani_skill.utils import sapien_utils
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 
-from maniskill_pnp.planning.primitives import MotionPrimitives, grasp_pose
+from maniskill_pnp.planning.primitives import MotionPrimitives, PrimitiveResult, grasp_pose
 from maniskill_pnp.tasks.bin import build_bin
 from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_action
 from maniskill_pnp.tasks.conveyor_config import (
