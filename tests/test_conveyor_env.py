@@ -108,6 +108,8 @@ def test_bad_actions_raise_clear_errors(env):
         (dict(object_kinds=("cuboid", "torus")), ["torus", "cylinder"]),
         (dict(alignment="middle"), ["alignment", "center"]),
         (dict(speed="warp"), ["speed", "medium"]),
+        (dict(num_envs=2), ["one env", "num_envs=2"]),
+        (dict(control_mode="pd_ee_delta_pose"), ["pd_joint_pos", "pd_ee_delta_pose"]),
     ],
 )
 def test_bad_options_raise_clear_errors(kwargs, words):

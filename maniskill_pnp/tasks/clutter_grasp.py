@@ -117,11 +117,6 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             raise ValueError(f"min_gap must be >= 0, got {min_gap!r}")
         if not (isinstance(max_consecutive_failures, int) and max_consecutive_failures >= 1):
             raise ValueError(f"max_consecutive_failures must be a positive int, got {max_consecutive_failures!r}")
-        if kwargs.get("num_envs", 1) != 1:
-            raise ValueError(f"ClutterGrasp-v1 runs one env (whole grasps per step); got num_envs={kwargs['num_envs']}")
-        kwargs.setdefault("control_mode", "pd_joint_pos")
-        if kwargs["control_mode"] != "pd_joint_pos":
-            raise ValueError(f"ClutterGrasp-v1 needs control_mode='pd_joint_pos', got {kwargs['control_mode']!r}")
         kwargs.setdefault("obs_mode", "rgb+depth")
         if kwargs["obs_mode"] != "rgb+depth":
             raise ValueError(f"ClutterGrasp-v1 observes RGB-D heightmaps: obs_mode must be 'rgb+depth', got {kwargs['obs_mode']!r}")

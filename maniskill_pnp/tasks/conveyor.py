@@ -102,11 +102,6 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
             raise ValueError(f"unknown object kinds {unknown or kinds!r}; choose a non-empty subset of {list(OBJECT_KINDS)}")
         _check_choice("alignment", alignment, ALIGNMENTS)
         _check_choice("speed", speed, SPEEDS)
-        if kwargs.get("num_envs", 1) != 1:
-            raise ValueError(f"ConveyorProximity-v1 runs one env (whole primitives per step); got num_envs={kwargs['num_envs']}")
-        kwargs.setdefault("control_mode", "pd_joint_pos")
-        if kwargs["control_mode"] != "pd_joint_pos":
-            raise ValueError(f"ConveyorProximity-v1 needs control_mode='pd_joint_pos', got {kwargs['control_mode']!r}")
         self.conveyor = conveyor or ConveyorSpec()
         self.object_kinds = kinds
         self.fixed_alignment = alignment

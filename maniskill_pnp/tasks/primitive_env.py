@@ -35,7 +35,20 @@ def parse_discrete_action(action, n: int, valid: str) -> int:
 
 
 class PrimitiveStepEnv(BaseEnv):
-    """A ManiSkill task whose step executes a whole primitive chosen by one Discrete action."""
+    """A ManiSkill task whose step executes a whole primitive chosen by one Discrete action.
+
+    It runs one env (primitives of parallel envs do not run in lockstep yet) in the ``pd_joint_pos`` control mode
+    the primitives drive; other values raise a ValueError before the scene is built.
+    """
+
+    def __init__(self, *args, **kwargs):
+        name = type(self).__name__
+        if kwargs.get("num_envs", 1) != 1:
+            raise ValueError(f"{name} runs one env (one whole primitive per step); got num_envs={kwargs['num_envs']}")
+        kwargs.setdefault("control_mode", "pd_joint_pos")
+        if kwargs["control_mode"] != "pd_joint_pos":
+            raise ValueError(f"{name} needs control_mode='pd_joint_pos', got {kwargs['control_mode']!r}")
+        super().__init__(*args, **kwargs)
 
     def _use_discrete_actions(self, n: int) -> None:
         """Replace the agent's low-level action space by ``Discrete(n)``; call after ``super().__init__``."""
