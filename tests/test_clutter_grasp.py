@@ -98,3 +98,20 @@ def test_oracle_clears_a_loose_scene(env):
     assert terminated and info["objects_remaining"] == 0
     assert info["objects_in_bin"] >= 3 and info["lost_objects"] <= 1
     assert grasps / steps >= 0.6
+
+
+def test_consecutive_failures_truncate_through_gym_make(env):
+    """The task's own truncation survives ``gym.make``'s time-limit wrapper (ManiSkill's would overwrite it)."""
+    base = env.unwrapped
+    obs, _ = env.reset(seed=5)
+    empty = np.argwhere(obs["depth_heightmap"][0].numpy() < 0.002)
+    row, col = empty[0]
+    action = int(row) * base.workspace.heightmap_size + int(col)  # rotation 0, a pixel with nothing on it
+    saved, base.max_consecutive_failures = base.max_consecutive_failures, 2
+    try:
+        flags = [env.step(action)[2:4] for _ in range(2)]
+    finally:
+        base.max_consecutive_failures = saved
+    (term1, trunc1), (term2, trunc2) = flags
+    assert not trunc1.item() and not term1.item()
+    assert trunc2.item() and not term2.item()

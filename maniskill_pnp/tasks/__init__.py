@@ -1,9 +1,10 @@
 """ManiSkill tasks of maniskill_pnp; importing this module registers every task id with ManiSkill and gymnasium."""
 
 from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv
+from maniskill_pnp.tasks.clutter_grasp_slide import ClutterGraspSlideEnv
 from maniskill_pnp.tasks.conveyor import ConveyorProximityEnv
 from maniskill_pnp.tasks.cube_to_bin import CubeToBinEnv
 
-TASK_IDS = ("CubeToBin-v1", "ConveyorProximity-v1", "ClutterGrasp-v1")
+TASK_IDS = ("CubeToBin-v1", "ConveyorProximity-v1", "ClutterGrasp-v1", "ClutterGraspSlide-v1")
 
-__all__ = ["ClutterGraspEnv", "ConveyorProximityEnv", "CubeToBinEnv", "TASK_IDS"]
+__all__ = ["ClutterGraspEnv", "ClutterGraspSlideEnv", "ConveyorProximityEnv", "CubeToBinEnv", "TASK_IDS"]

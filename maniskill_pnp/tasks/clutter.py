@@ -22,6 +22,20 @@ from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
 #: Object counts (min, max) per clutter density (thesis chapters 5 and 6).
 DENSITY_PRESETS = {"minimum": (6, 10), "thesis": (10, 15), "medium": (15, 20), "maximum": (25, 30), "complicated": (3, 7)}
+#: Chapter 6's short names for presets of :data:`DENSITY_PRESETS`.
+DENSITY_ALIASES = {"min": "minimum", "max": "maximum"}
+
+
+def density_range(name: str) -> tuple[int, int]:
+    """Object count range (min, max) of a density preset name of :data:`DENSITY_PRESETS` or :data:`DENSITY_ALIASES`.
+
+    Raises:
+        ValueError: an unknown name (the message lists the valid ones).
+    """
+    key = DENSITY_ALIASES.get(name, name)
+    if key not in DENSITY_PRESETS:
+        raise ValueError(f"unknown density preset {name!r}; valid: {list(DENSITY_PRESETS) + list(DENSITY_ALIASES)}")
+    return DENSITY_PRESETS[key]
 
 Pose7 = tuple[float, float, float, float, float, float, float]  # x, y, z, qw, qx, qy, qz
 
@@ -60,7 +74,8 @@ def sample_clutter(
     """Drop poses for ``specs`` over the spawn square of ``workspace``.
 
     Loosely packed: upright, random yaw, footprints (bounding rectangles) at least ``min_gap`` apart and inside
-    the spawn square, released 2 mm above the table. Otherwise: random orientation anywhere in the square, released at staggered heights (they may pile).
+    the spawn square, released 2 mm above the table. Otherwise: random orientation anywhere in the square, each
+    released just above the objects already dropped under it (they pile up).
 
     Raises:
         ValueError: the objects do not fit loosely (fewer objects or a smaller ``min_gap`` would).
@@ -95,13 +110,19 @@ def sample_clutter(
             f"could not place {len(specs)} objects loosely (min gap {min_gap} m) in the spawn square; "
             "use fewer objects, a smaller min_gap or loosely_packed=False"
         )
-    z = workspace.table_z
+    # Bounding spheres (xy centre, radius, top) released so far; a new one goes above those whose footprint
+    # circles it overlaps, so no two objects start inside each other and none falls from higher than it must.
+    dropped: list[tuple[np.ndarray, float, float]] = []
     for spec in specs:
         xy = rng.uniform([x0, y0], [x1, y1])
         q = rng.normal(size=4)
         r = float(np.linalg.norm(spec.extents)) / 2
-        poses.append(sapien.Pose(p=[xy[0], xy[1], z + r + 0.005], q=q / np.linalg.norm(q)))
-        z += 2 * r + 0.005  # stagger release heights so no two objects start inside each other
+        z = workspace.table_z + r + 0.005
+        for xy2, r2, top2 in dropped:
+            if np.hypot(*(xy - xy2)) < r + r2:
+                z = max(z, top2 + r + 0.005)
+        dropped.append((xy, r, z + r))
+        poses.append(sapien.Pose(p=[xy[0], xy[1], z], q=q / np.linalg.norm(q)))
     return poses
 
 

@@ -9,6 +9,10 @@ Objects: a pool of procedural objects (:mod:`maniskill_pnp.tasks.objects`) is bu
 seed; each episode draws ``num_objects`` of them, drops them into the workspace and lets them settle. Pool
 objects not in the episode wait on the floor far from the robot and the cameras. With ``layout=`` the pool is
 exactly the layout's objects, placed at its poses every episode.
+
+Subclasses with more primitives (``ClutterGraspSlide-v1``) override the hooks :meth:`ClutterGraspEnv._execute`
+(run the decoded action) and :meth:`ClutterGraspEnv._judge` (reward and success from what it did and the
+heightmaps before and after), and may offer several layouts (:meth:`ClutterGraspEnv._resolve_layouts`).
 """
 
 from __future__ import annotations
@@ -24,16 +28,15 @@ from gymnasium import spaces
 from mani_skill.agents.robots import Panda
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
-from mani_skill.utils.registration import register_env
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 
 from maniskill_pnp.planning.primitives import MotionPrimitives, grasp_pose
 from maniskill_pnp.planning.robot import panda_spec
 from maniskill_pnp.tasks.bin import build_bin
-from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_action
-from maniskill_pnp.tasks.clutter import DENSITY_PRESETS, object_status, random_specs, sample_clutter, settle, validate_layout
+from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_action, register_primitive_env
+from maniskill_pnp.tasks.clutter import density_range, object_status, random_specs, sample_clutter, settle, validate_layout
 from maniskill_pnp.tasks.heightmap import heightmaps_from_sensors
-from maniskill_pnp.tasks.objects import KINDS, build_object
+from maniskill_pnp.tasks.objects import KINDS, ObjectSpec, build_object
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
@@ -49,7 +52,7 @@ def camera_clear_home() -> np.ndarray:
     return q
 
 
-@register_env("ClutterGrasp-v1", max_episode_steps=None)
+@register_primitive_env("ClutterGrasp-v1", max_episode_steps=None)
 class ClutterGraspEnv(PrimitiveStepEnv):
     """**Task Description:**
     A loosely packed clutter of regular and irregular objects lies in the workspace in front of the Panda; a bin
@@ -62,7 +65,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
 
     **Randomizations:**
     - which pool objects form the clutter and how many (``num_objects``: an int, a (min, max) range, or a
-      density preset name of :data:`DENSITY_PRESETS`)
+      density preset name of :data:`~maniskill_pnp.tasks.clutter.DENSITY_PRESETS`)
     - their xy positions and yaws (loosely packed: footprints ``min_gap`` apart) or full poses (any packing),
       then a physics settle
 
@@ -80,6 +83,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     POOL_SIZE = 20
     #: Control steps the gripper is held open after a place that did not land in the bin, before checking again.
     RELEASE_STEPS = 20
+    #: Primitive names, in the order of the action's primitive index.
+    PRIMITIVES = ("grasp",)
 
     def __init__(
         self,
@@ -104,9 +109,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         motion planner's seed."""
         self.workspace = workspace or WorkspaceSpec()
         if isinstance(num_objects, str):
-            if num_objects not in DENSITY_PRESETS:
-                raise ValueError(f"unknown density preset {num_objects!r}; valid: {list(DENSITY_PRESETS)}")
-            num_objects = DENSITY_PRESETS[num_objects]
+            num_objects = density_range(num_objects)
         lo, hi = (num_objects, num_objects) if isinstance(num_objects, (int, np.integer)) else tuple(num_objects)
         if not (isinstance(lo, (int, np.integer)) and isinstance(hi, (int, np.integer)) and 1 <= lo <= hi):
             raise ValueError(f"num_objects must be a positive int or a (min, max) range with 1 <= min <= max, got {num_objects!r}")
@@ -120,8 +123,11 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         kwargs.setdefault("obs_mode", "rgb+depth")
         if kwargs["obs_mode"] != "rgb+depth":
             raise ValueError(f"ClutterGrasp-v1 observes RGB-D heightmaps: obs_mode must be 'rgb+depth', got {kwargs['obs_mode']!r}")
-        self.layout_entries = validate_layout(layout, self.workspace) if layout is not None else None
-        self.num_objects_range = (int(lo), int(hi)) if self.layout_entries is None else (len(self.layout_entries),) * 2
+        self.layouts = self._resolve_layouts(layout)
+        if self.layouts is None:
+            self.num_objects_range = (int(lo), int(hi))
+        else:
+            self.num_objects_range = (min(map(len, self.layouts)), max(map(len, self.layouts)))
         self.object_kinds = kinds
         self.loosely_packed = bool(loosely_packed)
         self.min_gap = float(min_gap)
@@ -129,7 +135,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.max_actions = int(max_actions) if max_actions is not None else 3 * self.num_objects_range[1]
         self.include_camera_data = include_camera_data
         self.planner_seed = planner_seed
-        self.action_layout = PixelActionLayout(1, self.workspace.num_rotations, self.workspace.heightmap_size, self.workspace.heightmap_size)
+        s = self.workspace.heightmap_size
+        self.action_layout = PixelActionLayout(len(self.PRIMITIVES), self.workspace.num_rotations, s, s)
         self.home_qpos = camera_clear_home()
         self.prims: MotionPrimitives | None = None
         self._episode_ready = False
@@ -174,8 +181,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.table_scene = TableSceneBuilder(self, robot_init_qpos_noise=0.0)
         self.table_scene.build()
         self.bin = build_bin(self.scene, self.workspace.bin)
-        if self.layout_entries is not None:
-            self.pool_specs = [spec for spec, _ in self.layout_entries]
+        if self.layouts is not None:
+            self.pool_specs, self.layout_slots = _shared_pool(self.layouts)
         else:
             rng = np.random.default_rng(self.LIBRARY_SEED)
             self.pool_specs = random_specs(rng, max(self.POOL_SIZE, self.num_objects_range[1]), self.object_kinds)
@@ -196,9 +203,11 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             actor.set_pose(self._park_pose(i))
             actor.set_linear_velocity(torch.zeros(1, 3))
             actor.set_angular_velocity(torch.zeros(1, 3))
-        if self.layout_entries is not None:
-            chosen = list(range(len(self.pool)))
-            poses = [pose for _, pose in self.layout_entries]
+        self.layout_index = -1
+        if self.layouts is not None:
+            self.layout_index = self._choose_layout(rng, options)
+            chosen = self.layout_slots[self.layout_index]
+            poses = [pose for _, pose in self.layouts[self.layout_index]]
         else:
             lo, hi = self.num_objects_range
             n = int(rng.integers(lo, hi + 1))
@@ -230,42 +239,25 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         if not self._episode_ready:
             raise RuntimeError("call reset() before step()")
         index = self._check_action(action)
-        _, rot, row, col = self.action_layout.decode(index)
+        primitive, rot, row, col = (int(v) for v in self.action_layout.decode(index))
         prims = self._primitives()
+        before = self._height
         t0 = time.perf_counter()
-        surface = float(self._height[row, col])
-        xyz = self.workspace.pixel_to_world(row, col, 0.0)
-        xyz[2] = self.workspace.grasp_tcp_height(surface)
-        yaw = float(self.workspace.rotation_to_yaw(rot))
-        in_ws = self._in_workspace()
-        pick = prims.pick(grasp_pose(xyz, yaw), target=None, candidates=in_ws)
-        placed, place_stage, place_reason = False, "", ""
-        if pick.grasped:
-            place = prims.place(self.workspace.bin.region())
-            placed, place_stage, place_reason = place.placed, place.stage, place.reason
-            if not placed:
-                # Carrying failed (object still held) or it had not come to rest yet: open wide, wait, look again.
-                prims.executor.gripper(1.0, self.RELEASE_STEPS)
-                prims.held = None
-                placed = self._status()[self.active.index(pick.held)] == "bin"
+        outcome = self._execute(primitive, rot, row, col)
         home = prims.go_home()
         if not home.ok:  # one more plan (RRT is randomized) before leaving the arm in the cameras' view
             home = prims.go_home()
         t_motion = time.perf_counter() - t0
-        self.num_actions += 1
-        self.num_grasps += int(pick.grasped)
-        self.num_placed += int(placed)
-        self.consecutive_failures = 0 if pick.grasped else self.consecutive_failures + 1
-        reward = 1.0 if placed else 0.5 if pick.grasped else 0.0
-        self.last = dict(
-            grasp_success=bool(pick.grasped), place_success=bool(placed), stage=pick.stage, reason=pick.reason,
-            place_stage=place_stage, place_reason=place_reason, home_ok=bool(home.ok), action=index,
-            pixel=(int(rot), int(row), int(col)), grasp_position=[float(v) for v in xyz], grasp_yaw=yaw,
-            planning_time=pick.planning_time + home.planning_time, time_motion=t_motion,
-        )
         self._elapsed_steps += 1
+        obs = self.get_obs()
+        reward, success = self._judge(outcome, before, self._height)
+        self.num_actions += 1
+        self.num_grasps += int(outcome["grasp_success"])
+        self.num_placed += int(outcome["place_success"])
+        self.consecutive_failures = 0 if success else self.consecutive_failures + 1
+        outcome["planning_time"] += home.planning_time
+        self.last = dict(outcome, home_ok=bool(home.ok), action=index, pixel=(rot, row, col), time_motion=t_motion)
         info = self.get_info()
-        obs = self.get_obs(info)
         info["time_render"], info["time_heightmap"] = self._t_render, self._t_heightmap
         terminated = torch.tensor([info["objects_remaining"] == 0], device=self.device)
         truncated = torch.tensor(
@@ -275,12 +267,83 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self._last_obs = obs
         return obs, torch.tensor([reward], dtype=torch.float32, device=self.device), terminated, truncated, info
 
+    def _execute(self, primitive: int, rot: int, row: int, col: int) -> dict:
+        """Run the decoded action (the arm is left where the primitive ends; ``step`` sends it home).
+
+        Returns:
+            Info fields of the step; at least ``grasp_success``, ``place_success``, ``stage``, ``reason`` and
+            ``planning_time``.
+        """
+        return self._grasp_at(rot, row, col)
+
+    def _judge(self, outcome: dict, height_before: np.ndarray, height_after: np.ndarray) -> tuple[float, bool]:
+        """Reward of the step and whether it counts as a success (a failure extends the run of failures).
+
+        ``outcome`` is what :meth:`_execute` returned (a subclass may add fields to it); the heightmaps are those
+        seen before and after the action.
+        """
+        grasped, placed = outcome["grasp_success"], outcome["place_success"]
+        r = self.rewards
+        return (r["place"] if placed else r["grasp"] if grasped else 0.0), grasped
+
+    @property
+    def rewards(self) -> dict[str, float]:
+        """Reward per outcome: ``place`` (the object landed in the bin), ``grasp`` (grasped but not placed)."""
+        return {"place": 1.0, "grasp": 0.5}
+
+    def _grasp_at(self, rot: int, row: int, col: int) -> dict:
+        """Grasp top-down at pixel ``(row, col)`` with rotation ``rot``; place a grasped object in the bin."""
+        prims = self._primitives()
+        surface = float(self._height[row, col])
+        xyz = self.workspace.pixel_to_world(row, col, 0.0)
+        xyz[2] = self.workspace.grasp_tcp_height(surface)
+        yaw = float(self.workspace.rotation_to_yaw(rot))
+        pick = prims.pick(grasp_pose(xyz, yaw), target=None, candidates=self._in_workspace())
+        placed, place_stage, place_reason = False, "", ""
+        if pick.grasped:
+            place = prims.place(self.workspace.bin.region())
+            placed, place_stage, place_reason = place.placed, place.stage, place.reason
+            if not placed:
+                # Carrying failed (object still held) or it had not come to rest yet: open wide, wait, look again.
+                prims.executor.gripper(1.0, self.RELEASE_STEPS)
+                prims.held = None
+                placed = self._status()[self.active.index(pick.held)] == "bin"
+        return dict(
+            grasp_success=bool(pick.grasped), place_success=bool(placed), stage=pick.stage, reason=pick.reason,
+            place_stage=place_stage, place_reason=place_reason, grasp_position=[float(v) for v in xyz], grasp_yaw=yaw,
+            planning_time=pick.planning_time,
+        )
+
     def _check_action(self, action) -> int:
         """The action as an int in the valid range; ValueError naming the range otherwise (before anything moves)."""
         n = self.action_layout.size
-        return parse_discrete_action(
-            action, n, f"one integer flat index in 0..{n - 1} over (rotation, row, col) = {self.action_layout.shape[1:]}"
-        )
+        if len(self.PRIMITIVES) > 1:
+            grid = f"(primitive, rotation, row, col) = {self.action_layout.shape}, primitives {self.PRIMITIVES}"
+        else:
+            grid = f"(rotation, row, col) = {self.action_layout.shape[1:]}"
+        return parse_discrete_action(action, n, f"one integer flat index in 0..{n - 1} over {grid}")
+
+    # ------------------------------------------------------------------ layouts
+    def _resolve_layouts(self, layout) -> list[list[tuple[ObjectSpec, sapien.Pose]]] | None:
+        """The episode layouts of the ``layout`` option, validated: None (random clutter) or a list of layouts.
+
+        ClutterGrasp-v1 takes one explicit layout (a list of ``(ObjectSpec, pose)``); subclasses may offer more.
+        """
+        return None if layout is None else [validate_layout(layout, self.workspace)]
+
+    def _choose_layout(self, rng: np.random.Generator, options: dict) -> int:
+        """This episode's layout: ``reset(options={"layout_index": k})`` when given, else a seeded draw.
+
+        Raises:
+            ValueError: ``layout_index`` is not an index of :attr:`layouts`.
+        """
+        n = len(self.layouts)
+        k = options.get("layout_index")
+        if k is None:
+            return int(rng.integers(n)) if n > 1 else 0
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < n:
+            raise ValueError(f"layout_index must be an int in 0..{n - 1}, got {k!r}")
+        return int(k)
 
     # ------------------------------------------------------------------ observation, evaluation, reward
     def _in_workspace(self) -> list[str]:
@@ -327,6 +390,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             num_grasps=self.num_grasps,
             consecutive_failures=self.consecutive_failures,
             settle_steps=self.settle_steps,
+            layout_index=self.layout_index,
             **self.last,
         )
 
@@ -335,3 +399,26 @@ class ClutterGraspEnv(PrimitiveStepEnv):
 
     def compute_normalized_dense_reward(self, obs, action, info):
         return self.compute_dense_reward(obs, action, info)
+
+
+def _shared_pool(layouts) -> tuple[list[ObjectSpec], list[list[int]]]:
+    """One pool for several layouts: each distinct spec as many times as the layout that uses it most.
+
+    Returns:
+        The pool's specs and, per layout, the pool index of each of its entries.
+    """
+    pool: list[ObjectSpec] = []
+    slots = []
+    for layout in layouts:
+        used: dict[ObjectSpec, int] = {}
+        indices = []
+        for spec, _ in layout:
+            copies = [i for i, s in enumerate(pool) if s == spec]
+            k = used.get(spec, 0)
+            if k == len(copies):
+                pool.append(spec)
+                copies.append(len(pool) - 1)
+            indices.append(copies[k])
+            used[spec] = k + 1
+        slots.append(indices)
+    return pool, slots

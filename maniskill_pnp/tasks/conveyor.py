@@ -25,12 +25,11 @@ from gymnasium import spaces
 from mani_skill.agents.robots import Panda
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
-from mani_skill.utils.registration import register_env
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 
 from maniskill_pnp.planning.primitives import MotionPrimitives, PrimitiveResult, grasp_pose
 from maniskill_pnp.tasks.bin import build_bin
-from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_action
+from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_action, register_primitive_env
 from maniskill_pnp.tasks.conveyor_config import (
     ALIGNMENTS, OBJECT_KINDS, REWARD_SCHEMES, SPEEDS, ConveyorSpec,
 )
@@ -54,7 +53,7 @@ def _check_choice(name: str, value: str | None, valid: tuple[str, ...]) -> None:
         raise ValueError(f"unknown {name} {value!r}; valid: {list(valid)} or None (random)")
 
 
-@register_env("ConveyorProximity-v1", max_episode_steps=10)
+@register_primitive_env("ConveyorProximity-v1", max_episode_steps=10)
 class ConveyorProximityEnv(PrimitiveStepEnv):
     """**Task Description:**
     Objects (cuboid, cylinder or sphere) ride a conveyor belt toward the Panda one at a time. Ray-type proximity

@@ -1,5 +1,6 @@
 """What every task whose one step is a whole motion primitive shares: a Discrete action space, strict action
-parsing, and gymnasium's ``np_random`` seeded with ManiSkill's seed.
+parsing, gymnasium's ``np_random`` seeded with ManiSkill's seed, and a time limit that keeps the task's own
+truncation.
 
 ManiSkill tasks take one low-level control action per step; the tasks of this package take one decision (a
 coordinate, a pixel) and execute a planned primitive inside ``step``. They subclass :class:`PrimitiveStepEnv`.
@@ -12,7 +13,10 @@ import numpy as np
 import torch
 from gymnasium import spaces
 
+from gymnasium.envs.registration import WrapperSpec
+
 from mani_skill.envs.sapien_env import BaseEnv
+from mani_skill.utils.registration import TimeLimitWrapper, register_env
 
 
 def parse_discrete_action(action, n: int, valid: str) -> int:
@@ -32,6 +36,38 @@ def parse_discrete_action(action, n: int, valid: str) -> int:
     if not 0 <= index < n:
         raise ValueError(f"action {index} out of range: must be {valid}")
     return index
+
+
+class PrimitiveTimeLimit(TimeLimitWrapper):
+    """ManiSkill's time limit, except that a truncation the task reports itself is kept.
+
+    ManiSkill's :class:`~mani_skill.utils.registration.TimeLimitWrapper` (which ``gym.make`` adds to every
+    registered id) *replaces* the env's ``truncated`` by ``elapsed_steps >= max_episode_steps``, so a task that
+    truncates on its own (e.g. after 10 consecutive failed grasps) would never end. This wrapper returns the OR.
+    """
+
+    def step(self, action):
+        observation, reward, terminated, own, info = self.env.step(action)
+        n = self.base_env.num_envs
+        truncated = torch.as_tensor(own, device=self.base_env.device).to(torch.bool).reshape(n)
+        if self._max_episode_steps is not None:
+            truncated = truncated | (self.base_env.elapsed_steps >= self._max_episode_steps).reshape(n)
+        return observation, reward, terminated, truncated, info
+
+
+def register_primitive_env(uid: str, max_episode_steps: int | None = None, **kwargs):
+    """ManiSkill's ``register_env`` decorator, with :class:`PrimitiveTimeLimit` as the ``gym.make`` time limit."""
+    register = register_env(uid, max_episode_steps=max_episode_steps, **kwargs)
+
+    def decorate(cls):
+        cls = register(cls)
+        gym.registry[uid].additional_wrappers = (
+            WrapperSpec("PrimitiveTimeLimit", entry_point=f"{__name__}:PrimitiveTimeLimit",
+                        kwargs=dict(max_episode_steps=max_episode_steps)),
+        )
+        return cls
+
+    return decorate
 
 
 class PrimitiveStepEnv(BaseEnv):

@@ -8,6 +8,10 @@ points with the same object, so the two can never disagree about a constant.
 Grid convention (as in VPG): ``heightmap[row, col]``; ``col`` grows with world x and ``row`` with world y, the
 pixel centre of ``(row, col)`` is ``(x_min + (col + 0.5) * pixel_size, y_min + (row + 0.5) * pixel_size)``.
 Rotation index ``r`` means a grasp whose jaws close along ``yaw = r * 2π / num_rotations`` from world x.
+A slide with rotation ``r`` pushes perpendicular to that jaw line: "left" is the jaw direction turned by +90°
+(counter-clockwise seen from above, world z up), ``(-sin yaw, cos yaw)``; "right" is the opposite,
+``(sin yaw, -cos yaw)``. In the heightmap rotated so that the jaws close along its column axis, left is
+towards growing rows. Rotation 0: jaws along +x, left = +y, right = -y.
 """
 
 from __future__ import annotations
@@ -77,6 +81,9 @@ class WorkspaceSpec:
         finger_length: Distance from that jaw reference (the base of the finger pads) down to the fingertip TCP;
             the TCP therefore goes to ``surface + grasp_z_offset - finger_length``.
         min_tip_height: The fingertip TCP never goes below this height above the table.
+        slide_length: Length of a slide (push) primitive (m); the thesis' 8 cm.
+        slide_clearance: Half side (m) of the square around a slide's start pixel whose highest point sets the
+            closed fingertips' height (VPG's "safe z": the tip comes down beside objects, never onto them).
         cameras: The RGB-D cameras fused into the heightmap; None: :func:`default_cameras` of ``center`` (a
             top-down narrow-FOV one and a perspective one).
         bin: The place bin, beside the workspace.
@@ -92,6 +99,8 @@ class WorkspaceSpec:
     grasp_z_offset: float = 0.03
     finger_length: float = 0.05
     min_tip_height: float = 0.012
+    slide_length: float = 0.08
+    slide_clearance: float = 0.01
     cameras: tuple[CameraSpec, ...] | None = None
     bin: BinSpec = field(default_factory=BinSpec)
 
@@ -106,6 +115,8 @@ class WorkspaceSpec:
                 f"num_rotations must divide 360 degrees evenly (a step that is a whole number of 1/{ROTATION_STEP_DIVISOR} "
                 f"degrees, e.g. 4, 8, 16 = 22.5 degrees), got {r!r}"
             )
+        if not self.slide_length > 0 or not self.slide_clearance >= 0:
+            raise ValueError(f"slide_length must be > 0 and slide_clearance >= 0, got {self.slide_length!r}, {self.slide_clearance!r}")
         if not self.max_height > 0:
             raise ValueError(f"max_height must be > 0, got {self.max_height!r}")
         if not 0 <= self.spawn_margin < self.side / 2:
@@ -192,3 +203,24 @@ class WorkspaceSpec:
         """
         tip = surface_height + self.grasp_z_offset - self.finger_length
         return self.table_z + max(tip, self.min_tip_height)
+
+    def slide_direction(self, rotation, side: str) -> np.ndarray:
+        """Unit push direction (x, y) of a slide with rotation index ``rotation``; ``side`` is "left" or "right".
+
+        Left is the jaw direction turned by +90° about world z (see the module docstring), right the opposite.
+        """
+        if side not in ("left", "right"):
+            raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+        yaw = self.rotation_to_yaw(rotation)
+        sign = 1.0 if side == "left" else -1.0
+        return sign * np.array([-math.sin(yaw), math.cos(yaw)])
+
+    def slide_tip_height(self, height: np.ndarray, row: int, col: int) -> float:
+        """World z of the closed fingertips during a slide that starts at pixel ``(row, col)`` of ``height``.
+
+        The highest point of ``height`` (m above the table) within ``slide_clearance`` of the pixel, so the tip comes
+        down on nothing; never lower than ``min_tip_height``.
+        """
+        k = int(round(self.slide_clearance / self.pixel_size))
+        patch = np.asarray(height)[max(row - k, 0): row + k + 1, max(col - k, 0): col + k + 1]
+        return self.table_z + max(float(patch.max()), self.min_tip_height)

@@ -1,0 +1,164 @@
+"""ClutterGraspSlide-v1: grasp and slide ("G&S") in any clutter, tightly packed allowed (thesis part III).
+
+ClutterGrasp-v1 with two more primitives. The action is one flat index over (primitive, rotation, row, col),
+primitives ``grasp``, ``left_slide`` and ``right_slide`` (:class:`~maniskill_pnp.tasks.pixel_action.PixelActionLayout`
+with 3 primitives). A grasp is ClutterGrasp-v1's grasp-and-place. A slide lowers the closed fingertips at the
+pixel's 3-D point (:meth:`WorkspaceSpec.slide_tip_height`: the highest surface within ``slide_clearance`` of the
+pixel, so the tip comes down beside objects) and pushes ``slide_length`` (8 cm) straight to the left or right of
+the rotation's jaw direction (:meth:`WorkspaceSpec.slide_direction`: left is the jaw direction turned +90° about
+world z; rotation 0 pushes left along +y, right along -y). The closed fingers face the push, a flat pusher.
+
+A slide succeeds when it changed the scene: VPG's heightmap test, more than :data:`CHANGE_PIXELS` pixels of a
+:data:`CHANGE_REFERENCE_SIZE`² heightmap (VPG's 300 of 224×224) whose height changed by more than
+:data:`CHANGE_MIN_DELTA` and less than :data:`CHANGE_MAX_DELTA` metres. For another heightmap size the pixel count
+scales with the heightmap's pixel count, so the same share of the heightmap must change (with the default 0.448 m
+workspace, the same area of table: about 24.5 pixels of a 64×64 heightmap); see :func:`heightmap_changed`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+from maniskill_pnp.tasks.clutter import validate_layout
+from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv
+from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
+from maniskill_pnp.tasks.primitive_env import register_primitive_env
+
+#: Rewards per scheme: object placed in the bin, grasped but not placed, slide that changed the scene.
+REWARD_SCHEMES = {
+    "default": dict(place=1.0, grasp=0.8, slide=0.5),
+    "no_slide_reward": dict(place=1.0, grasp=0.8, slide=0.0),
+}
+
+#: VPG's scene-change test: more than CHANGE_PIXELS pixels of a CHANGE_REFERENCE_SIZE² heightmap changed by a
+#: height in (CHANGE_MIN_DELTA, CHANGE_MAX_DELTA) metres.
+CHANGE_PIXELS = 300
+CHANGE_REFERENCE_SIZE = 224
+CHANGE_MIN_DELTA = 0.01
+CHANGE_MAX_DELTA = 0.3
+
+
+def changed_pixels(before: np.ndarray, after: np.ndarray) -> int:
+    """Pixels whose height (m) changed by more than ``CHANGE_MIN_DELTA`` and less than ``CHANGE_MAX_DELTA``."""
+    d = np.abs(np.asarray(after, np.float64) - np.asarray(before, np.float64))
+    return int(np.count_nonzero((d > CHANGE_MIN_DELTA) & (d < CHANGE_MAX_DELTA)))
+
+
+def change_threshold(height: int, width: int) -> float:
+    """Changed pixels a ``height``×``width`` heightmap needs: ``CHANGE_PIXELS`` scaled by its share of a 224×224 map."""
+    return CHANGE_PIXELS * height * width / CHANGE_REFERENCE_SIZE**2
+
+
+def heightmap_changed(before: np.ndarray, after: np.ndarray) -> bool:
+    """VPG's "the scene changed" test on two heightmaps of the same shape (see the module docstring)."""
+    if np.shape(before) != np.shape(after):
+        raise ValueError(f"heightmaps must have the same shape, got {np.shape(before)} and {np.shape(after)}")
+    return changed_pixels(before, after) > change_threshold(*np.shape(before)[-2:])
+
+
+@register_primitive_env("ClutterGraspSlide-v1", max_episode_steps=None)
+class ClutterGraspSlideEnv(ClutterGraspEnv):
+    """**Task Description:**
+    Any clutter of regular and irregular objects, tightly packed allowed, lies in the workspace in front of the
+    Panda; a bin stands beside it. Each step the agent picks one flat index over (primitive, rotation, row, col)
+    of the heightmap, primitives ``grasp``, ``left_slide``, ``right_slide``. A grasp is ClutterGrasp-v1's
+    (top-down at the pixel's 3-D point, the rotation's yaw, then into the bin); a slide pushes the closed
+    fingertips 8 cm from the pixel's 3-D point to the left or right of the rotation's jaw direction, to pull
+    apart objects that no grasp fits. Observations as ClutterGrasp-v1's.
+    Reward (``reward_scheme="default"``): 1 placed in the bin, 0.8 grasped but not placed, 0.5 a slide that
+    changed the heightmap, 0 otherwise; ``"no_slide_reward"`` gives slides 0.
+
+    **Randomizations:**
+    - random clutters as ClutterGrasp-v1's: ``num_objects`` (10 by default; presets ``"min"`` 6–10,
+      ``"medium"`` 15–20, ``"max"`` 25–30), dropped at random orientations that may pile up
+      (``loosely_packed=False`` by default)
+    - or ``layout="complicated"`` (or ``num_objects="complicated"``): one of the hand-designed locking layouts
+      of :mod:`~maniskill_pnp.tasks.complicated_layouts` per episode, a seeded draw unless
+      ``complicated_index`` (or ``reset(options={"layout_index": k})``) fixes it
+
+    **Success Conditions:**
+    - the workspace is clear (episode terminates); it is truncated after ``max_consecutive_failures`` failures
+      in a row (a grasp that held nothing or a slide that changed nothing) or ``max_actions`` actions.
+      ``info`` is ClutterGrasp-v1's plus ``primitive`` (name), ``primitive_index``, ``slide_changed`` and
+      ``changed_pixels``.
+    """
+
+    PRIMITIVES = ("grasp", "left_slide", "right_slide")
+
+    def __init__(
+        self,
+        *args,
+        num_objects: int | tuple[int, int] | str = 10,
+        loosely_packed: bool = False,
+        layout=None,
+        complicated_index: int | None = None,
+        reward_scheme: str = "default",
+        **kwargs,
+    ):
+        """Args beyond ClutterGrasp-v1's: ``layout`` also takes ``"complicated"`` (the hand-designed layouts;
+        ``num_objects="complicated"`` says the same), ``complicated_index`` (always that one of them; implies
+        ``layout="complicated"``), and ``reward_scheme`` (a key of :data:`REWARD_SCHEMES`)."""
+        if reward_scheme not in REWARD_SCHEMES:
+            raise ValueError(f"unknown reward scheme {reward_scheme!r}; valid schemes: {list(REWARD_SCHEMES)}")
+        if num_objects == "complicated" or complicated_index is not None:
+            if layout is not None and not (isinstance(layout, str) and layout == "complicated"):
+                raise ValueError("num_objects='complicated' and complicated_index select the hand-designed layouts: pass no other layout")
+            layout = "complicated"
+        n = len(COMPLICATED_LAYOUT_NAMES)
+        if complicated_index is not None and (
+            isinstance(complicated_index, bool) or not isinstance(complicated_index, (int, np.integer)) or not 0 <= complicated_index < n
+        ):
+            raise ValueError(f"complicated_index must be an int in 0..{n - 1} ({list(COMPLICATED_LAYOUT_NAMES)}), got {complicated_index!r}")
+        self.reward_scheme = reward_scheme
+        self.complicated_index = None if complicated_index is None else int(complicated_index)
+        super().__init__(*args, num_objects=num_objects, loosely_packed=loosely_packed, layout=layout, **kwargs)
+
+    @property
+    def rewards(self) -> dict[str, float]:
+        """Reward per outcome of the reward scheme: ``place``, ``grasp`` and ``slide`` (a slide that changed the scene)."""
+        return REWARD_SCHEMES[self.reward_scheme]
+
+    # ------------------------------------------------------------------ layouts
+    def _resolve_layouts(self, layout):
+        if isinstance(layout, str):
+            if layout != "complicated":
+                raise ValueError(f"unknown layout {layout!r}; valid: 'complicated' or a list of (ObjectSpec, pose)")
+            return [validate_layout(entries, self.workspace) for entries in complicated_layouts(self.workspace)]
+        return super()._resolve_layouts(layout)
+
+    def _choose_layout(self, rng, options):
+        if options.get("layout_index") is None and self.complicated_index is not None:
+            return self.complicated_index
+        return super()._choose_layout(rng, options)
+
+    # ------------------------------------------------------------------ episode and step
+    def _initialize_episode(self, env_idx, options):
+        super()._initialize_episode(env_idx, options)
+        self.last.update(primitive="", primitive_index=-1, slide_changed=False, changed_pixels=0)
+
+    def _execute(self, primitive, rot, row, col):
+        name = self.PRIMITIVES[primitive]
+        out = self._grasp_at(rot, row, col) if name == "grasp" else self._slide_at(name.removesuffix("_slide"), rot, row, col)
+        return dict(out, primitive=name, primitive_index=primitive)
+
+    def _slide_at(self, side: str, rot: int, row: int, col: int) -> dict:
+        """Push the closed fingertips ``slide_length`` from pixel ``(row, col)`` to ``side`` of rotation ``rot``."""
+        ws = self.workspace
+        start = ws.pixel_to_world(row, col, 0.0)
+        start[2] = ws.slide_tip_height(self._height, row, col)
+        direction = ws.slide_direction(rot, side)
+        res = self._primitives().slide(start, direction, ws.slide_length)
+        return dict(
+            grasp_success=False, place_success=False, stage=res.stage, reason=res.reason, place_stage="", place_reason="",
+            slide_start=[float(v) for v in start], slide_direction=[float(v) for v in direction], planning_time=res.planning_time,
+        )
+
+    def _judge(self, outcome, height_before, height_after):
+        if outcome["primitive"] == "grasp":
+            outcome.update(slide_changed=False, changed_pixels=0)
+            return super()._judge(outcome, height_before, height_after)
+        n = changed_pixels(height_before, height_after)
+        changed = n > change_threshold(*height_before.shape)
+        outcome.update(slide_changed=changed, changed_pixels=n)
+        return (self.rewards["slide"] if changed else 0.0), changed
