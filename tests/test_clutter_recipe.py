@@ -89,10 +89,15 @@ def test_smoke_run_then_resume(tmp_path):
     assert first["steps"] == 3 and first["updates"] == 3
     ckpt = load_checkpoint(run_dir / "checkpoint.pt")
     assert ckpt["counters"]["steps"] == 3
+    assert ckpt["replay"]["dir"] == "replay_step3" and ckpt["replay"]["size"] == 3
+    assert [p.name for p in run_dir.glob("replay_step*")] == ["replay_step3"]
     assert json.loads((run_dir / "config.json").read_text())["heightmap_size"] == 32
     assert (run_dir / "scalars" / "train" / "grasp_success.csv").is_file()
 
     second = _train(tmp_path, 5, "--resume")
     assert second["start_step"] == 3 and second["steps"] == 5 and second["updates"] == 5
-    assert load_checkpoint(run_dir / "checkpoint.pt")["counters"]["steps"] == 5
+    resumed = load_checkpoint(run_dir / "checkpoint.pt")
+    assert resumed["counters"]["steps"] == 5
+    assert resumed["replay"]["size"] == 5  # the 3 saved transitions were loaded back, 2 new ones added
+    assert [p.name for p in run_dir.glob("replay_step*")] == ["replay_step5"]
     assert len((run_dir / "scalars" / "train" / "loss.csv").read_text().splitlines()) >= 5

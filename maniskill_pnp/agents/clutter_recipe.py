@@ -9,8 +9,13 @@ Run it with ``python -m maniskill_pnp.cli train-clutter --preset cpu-small --see
 ``<out>/<run_name>/`` receives ``config.json``, ``checkpoint.pt`` (written atomically every ``checkpoint_interval``
 steps and at the end), ``train_summary.json`` and the CSV logs (``scalars/train/grasp_success.csv`` ...).
 ``--resume`` continues from the run folder's checkpoint (model, optimizer, target network, ε, step and episode
-counters, RNG states). The replay buffer's *contents* are not checkpointed (about 0.5 MB per transition at 224 px);
-a resumed run refills it, and the checkpoint keeps the replay metadata (its size and priorities' maximum at save).
+counters, RNG states) and, with ``save_replay`` (the default), from the replay buffer saved beside it
+(``replay_step<N>/``: TorchRL's ``ReplayBuffer.dumps`` of the storage, priorities and writer; about 40 kB per
+transition at 64 px, 0.5 MB at 224 px). The checkpoint names the replay folder of its own step, written before
+it, so a crash between the two leaves the previous pair intact.
+
+With ``mask_empty`` (the default) the actor and the bootstrap range over the actions that can touch something,
+grasps where the heightmap shows material (:class:`~maniskill_pnp.agents.pixel_mask.HeightmapActionMask`).
 
 Metric: ``grasp_success``, the running fraction of grasp attempts that lifted an object (reward >= 0.5) over the
 last ``success_window`` attempts of the ε-greedy behaviour.
@@ -36,6 +41,7 @@ from tqdm import tqdm
 from maniskill_pnp.agents.run_io import RunConfig, atomic_write_bytes, make_logger, write_json
 from maniskill_pnp.agents.pixel_fcn import BACKBONES, MultiPrimitiveQNetwork
 from maniskill_pnp.agents.pixel_loss import PixelDQNLoss
+from maniskill_pnp.agents.pixel_mask import HeightmapActionMask
 from maniskill_pnp.agents.pixel_policy import heightmap_input, make_pixel_policy
 from maniskill_pnp.agents.pixel_replay import make_pixel_replay, pack_transition, unpack_transition
 
@@ -90,8 +96,14 @@ class ClutterConfig(RunConfig):
     """SGD momentum."""
     weight_decay: float = 1e-3
     """SGD weight decay (L2)."""
-    batch_size: int = 1
-    """Transitions per sampled replay batch (one SGD step per env step)."""
+    batch_size: int = 8
+    """Transitions per sampled replay batch."""
+    updates_per_step: int = 1
+    """SGD steps (each on a fresh prioritized batch) after every env step."""
+    mask_empty: bool = True
+    """Act, explore and bootstrap only over grasps where the heightmap shows material (see pixel_mask)."""
+    mask_min_height: float = 0.01
+    """Height (m) above the table from which a pixel counts as material for ``mask_empty``."""
     learning_starts: int = 1
     """Transitions in the replay before the first SGD step."""
     replay_capacity: int = 2000
@@ -100,6 +112,8 @@ class ClutterConfig(RunConfig):
     """Priority exponent of the replay (0: uniform)."""
     replay_beta: float = 0.4
     """Importance-sampling exponent of the replay's priority weights."""
+    save_replay: bool = True
+    """Save the replay contents with every checkpoint, so a resumed run continues from them."""
     eps_start: float = 0.3
     """ε of the ε-greedy behaviour at step 0."""
     eps_end: float = 0.1
@@ -134,7 +148,7 @@ class ClutterConfig(RunConfig):
         if not self.workspace_side > 0 or not self.lr > 0:
             raise ValueError(f"workspace_side and lr must be > 0, got {self.workspace_side}, {self.lr}")
         positive = ("head_channels", "num_rotations", "heightmap_size", "num_objects", "steps", "target_update_interval",
-                    "batch_size", "learning_starts", "replay_capacity", "eps_decay_steps", "checkpoint_interval",
+                    "batch_size", "updates_per_step", "learning_starts", "replay_capacity", "eps_decay_steps", "checkpoint_interval",
                     "log_interval", "success_window")
         for name in positive:
             if getattr(self, name) < 1:
@@ -182,6 +196,13 @@ def make_env(cfg: ClutterConfig):
         sim_backend="physx_cpu", render_backend="cpu",
     )
     return env
+
+
+def make_action_mask(cfg: ClutterConfig) -> HeightmapActionMask | None:
+    """The grasp mask of ``cfg.mask_empty`` (None when off)."""
+    if not cfg.mask_empty:
+        return None
+    return HeightmapActionMask(("grasp",), cfg.num_rotations, min_height=cfg.mask_min_height)
 
 
 def make_model(cfg: ClutterConfig) -> MultiPrimitiveQNetwork:
@@ -274,19 +295,27 @@ def main(cfg: ClutterConfig) -> dict:
 
     # 2. make the model and its greedy / ε-greedy actors
     model = make_model(cfg)
+    mask = make_action_mask(cfg)
     _, explore, egreedy = make_pixel_policy(
-        model, env.action_spec, eps_init=cfg.eps_start, eps_end=cfg.eps_end, annealing_num_steps=cfg.eps_decay_steps
+        model, env.action_spec, eps_init=cfg.eps_start, eps_end=cfg.eps_end, annealing_num_steps=cfg.eps_decay_steps,
+        action_mask=mask,
     )
 
-    # 3. make the prioritized replay (packed heightmaps, memory-mapped in the run folder; its contents are not
-    #    checkpointed, so the scratch files of an earlier run are removed)
+    # 3. make the prioritized replay (packed heightmaps, memory-mapped in the run folder's scratch "replay/";
+    #    a resumed run loads the contents its checkpoint names)
     shutil.rmtree(run_dir / "replay", ignore_errors=True)
     replay = make_pixel_replay(
         cfg.replay_capacity, run_dir / "replay", cfg.replay_alpha, cfg.replay_beta, batch_size=cfg.batch_size
     )
+    if payload is not None and payload["replay"].get("dir"):
+        saved_replay = run_dir / payload["replay"]["dir"]
+        if not saved_replay.is_dir():
+            raise ValueError(f"cannot resume {ckpt_path}: its replay folder {saved_replay} is missing")
+        replay.loads(saved_replay)
 
     # 4. make the loss, the target-network updater and the optimizer
-    loss = PixelDQNLoss(model, gamma=cfg.gamma, delay_value=cfg.delay_value, double_dqn=cfg.double_dqn)
+    loss = PixelDQNLoss(model, gamma=cfg.gamma, delay_value=cfg.delay_value, double_dqn=cfg.double_dqn,
+                        action_mask=None if mask is None else mask.from_observation)
     updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval) if cfg.delay_value else None
     optimizer = torch.optim.SGD(loss.parameters(), lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
 
@@ -313,9 +342,16 @@ def main(cfg: ClutterConfig) -> dict:
     logger = make_logger(run_dir)
 
     def checkpoint() -> None:
-        replay_meta = dict(size=len(replay), capacity=cfg.replay_capacity, contents_saved=False)
+        replay_meta = dict(size=len(replay), capacity=cfg.replay_capacity, dir=None)
+        if cfg.save_replay:
+            replay_meta["dir"] = f"replay_step{counters['steps']}"
+            shutil.rmtree(run_dir / replay_meta["dir"], ignore_errors=True)
+            replay.dumps(run_dir / replay_meta["dir"])
         save_checkpoint(ckpt_path, cfg=cfg, model=model, loss=loss, optimizer=optimizer, egreedy=egreedy,
                         counters=counters, replay_meta=replay_meta)
+        for old in run_dir.glob("replay_step*"):
+            if old.name != replay_meta["dir"]:
+                shutil.rmtree(old, ignore_errors=True)
 
     # 7. main loop: collect one grasp, store it, one prioritized SGD step, refresh priorities, log, checkpoint
     outcomes: deque[bool] = deque(maxlen=cfg.success_window)
@@ -337,17 +373,18 @@ def main(cfg: ClutterConfig) -> dict:
 
         if len(replay) >= cfg.learning_starts:
             model.train()
-            sample = unpack_transition(replay.sample())
-            loss_td = loss(sample)
-            optimizer.zero_grad(set_to_none=True)
-            loss_td["loss_qvalue"].backward()
-            optimizer.step()
-            if updater is not None:
-                updater.step()
-            replay.update_tensordict_priority(sample)
+            for _ in range(cfg.updates_per_step):
+                sample = unpack_transition(replay.sample())
+                loss_td = loss(sample)
+                optimizer.zero_grad(set_to_none=True)
+                loss_td["loss_qvalue"].backward()
+                optimizer.step()
+                if updater is not None:
+                    updater.step()
+                replay.update_tensordict_priority(sample)
+                counters["updates"] += 1
+                last_loss = loss_td["loss_qvalue"].item()
             model.eval()
-            counters["updates"] += 1
-            last_loss = loss_td["loss_qvalue"].item()
 
         running = sum(outcomes) / len(outcomes)
         bar.update(n)
@@ -370,14 +407,13 @@ def main(cfg: ClutterConfig) -> dict:
     collector.shutdown()
     env.close()
 
-    # 8. final checkpoint and summary
-    checkpoint()
+    # 8. summary (the loop wrote the final checkpoint)
     summary.update(counters, running_grasp_success=sum(outcomes) / max(1, len(outcomes)), wall_s=time.perf_counter() - t0)
     write_json(run_dir / "train_summary.json", summary)
     return summary
 
 
 __all__ = [
-    "ClutterConfig", "PRESETS", "load_checkpoint", "main", "make_env", "make_model",
+    "ClutterConfig", "PRESETS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model",
     "save_checkpoint", "to_transitions",
 ]

@@ -28,6 +28,7 @@ Target networks: with ``delay_value=True`` the DQN loss keeps a copy of the para
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 import torch.nn.functional as F
@@ -116,9 +117,9 @@ class _PixelLoss(LossModule):
 class PixelDQNLoss(_PixelLoss):
     """Pixelwise DQN loss: Huber loss between ``Q(s, a)`` at the executed pixel and ``r + gamma * max Q'(s')``.
 
-    The bootstrap is the maximum over *all* next maps (every primitive, rotation and pixel), zero where the
-    transition is terminal. With ``double_dqn`` the online network picks the next action and the target
-    network values it.
+    The bootstrap is the maximum over *all* next maps (every primitive, rotation and pixel; with ``action_mask``
+    over the allowed actions only), zero where the transition is terminal. With ``double_dqn`` the online network
+    picks the next action and the target network values it.
 
     Args:
         value_network: Heightmaps ``(N, 4, H, W)`` -> maps ``(N, *action_shape)``.
@@ -128,6 +129,8 @@ class PixelDQNLoss(_PixelLoss):
         huber_delta: Threshold of the Huber loss (quadratic below, linear above).
         reduction: ``"mean"``, ``"sum"`` or ``"none"`` over the batch.
         use_prioritized_weights: Multiply by ``"priority_weight"`` when the tensordict holds it.
+        action_mask: Optional ``observation (N, 4, H, W) -> bool (N, *flat action)`` restricting the bootstrap's
+            max (e.g. ``HeightmapActionMask(...).from_observation``), the same mask the actor acts under.
 
     Example:
         >>> from torchrl.objectives import HardUpdate
@@ -147,6 +150,7 @@ class PixelDQNLoss(_PixelLoss):
         huber_delta: float = 1.0,
         reduction: str = "mean",
         use_prioritized_weights: bool = True,
+        action_mask: Callable[[torch.Tensor], torch.Tensor] | None = None,
     ):
         if not 0.0 <= gamma <= 1.0:
             raise ValueError(f"gamma must be in [0, 1], got {gamma!r}")
@@ -160,6 +164,7 @@ class PixelDQNLoss(_PixelLoss):
         self.gamma = float(gamma)
         self.double_dqn = double_dqn
         self.huber_delta = float(huber_delta)
+        self.action_mask = action_mask
 
     @torch.no_grad()
     def bootstrap(self, next_observation: torch.Tensor) -> torch.Tensor:
@@ -167,9 +172,12 @@ class PixelDQNLoss(_PixelLoss):
         n = next_observation.shape[0]
         target_params = self.target_value_network_params if self.delay_value else self.value_network_params.data
         next_q = self._maps(next_observation, target_params).reshape(n, -1)
+        allowed = None if self.action_mask is None else self.action_mask(next_observation).reshape(n, -1)
         if not self.double_dqn:
-            return next_q.max(dim=1).values
+            return (next_q if allowed is None else next_q.masked_fill(~allowed, float("-inf"))).max(dim=1).values
         online = self._maps(next_observation, self.value_network_params.data).reshape(n, -1)
+        if allowed is not None:
+            online = online.masked_fill(~allowed, float("-inf"))
         return next_q.gather(1, online.argmax(dim=1, keepdim=True)).squeeze(1)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:

@@ -1,0 +1,99 @@
+"""The heightmap action mask, and the actor and DQN bootstrap acting under it."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torch import nn
+from torchrl.data import Categorical
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from maniskill_pnp.agents.pixel_loss import PixelDQNLoss
+from maniskill_pnp.agents.pixel_mask import HeightmapActionMask
+from maniskill_pnp.agents.pixel_policy import make_pixel_policy
+from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+
+H = W = 8
+R = 2
+
+
+def block_height(b: int = 1) -> torch.Tensor:
+    """Heights ``(b, H, W)``: one 2x2 block of 3 cm at rows 2-3, cols 5-6, bare table elsewhere."""
+    h = torch.zeros(b, H, W)
+    h[:, 2:4, 5:7] = 0.03
+    return h
+
+
+class FixedMaps(nn.Module):
+    """Returns preset maps ``(N, *layout.shape)`` whatever the heightmap."""
+
+    def __init__(self, maps: torch.Tensor):
+        super().__init__()
+        self.maps = nn.Parameter(maps, requires_grad=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.maps.expand(x.shape[0], *self.maps.shape[1:])
+
+
+def test_grasps_only_on_material_slides_near_it():
+    layout = PixelActionLayout(3, R, H, W)
+    mask = HeightmapActionMask(("grasp", "left_slide", "right_slide"), R, slide_reach_px=1)
+    flat = mask(block_height())
+    assert flat.shape == (1, layout.size) and flat.dtype == torch.bool
+    maps = flat.reshape(1, *layout.shape)[0]
+    occupied = block_height()[0] > 0.01
+    for r in range(R):
+        assert torch.equal(maps[0, r], occupied)
+    near = torch.zeros(H, W, dtype=torch.bool)
+    near[1:5, 4:8] = True  # the block grown by one pixel
+    assert torch.equal(maps[1, 0], near) and torch.equal(maps[2, 1], near)
+
+
+def test_an_empty_heightmap_allows_everything():
+    flat = HeightmapActionMask(("grasp",), R)(torch.zeros(2, H, W))
+    assert flat.all()
+
+
+@pytest.mark.parametrize("kwargs", [dict(primitives=("push",)), dict(primitives=()), dict(num_rotations=0),
+                                    dict(min_height=-1.0), dict(slide_reach_px=-1)])
+def test_bad_mask_options_raise(kwargs):
+    args = dict(primitives=("grasp",), num_rotations=R) | kwargs
+    with pytest.raises(ValueError):
+        HeightmapActionMask(**args)
+
+
+def heightmap_td(b: int) -> TensorDict:
+    return TensorDict(color_heightmap=torch.zeros(b, H, W, 3, dtype=torch.uint8), depth_heightmap=block_height(b),
+                      batch_size=[b])
+
+
+def test_greedy_and_random_actions_stay_in_the_mask():
+    layout = PixelActionLayout(1, R, H, W)
+    maps = torch.zeros(1, *layout.shape)
+    maps[0, 0, 0, 7, 7] = 10.0  # the unmasked maximum lies on bare table
+    maps[0, 0, 1, 3, 5] = 1.0  # the best grasp on the block
+    mask = HeightmapActionMask(("grasp",), R)
+    spec = Categorical(layout.size, shape=(32,))
+    greedy, explore, _ = make_pixel_policy(FixedMaps(maps), spec, eps_init=1.0, eps_end=1.0, annealing_num_steps=1,
+                                           action_mask=mask)
+    out = greedy(heightmap_td(32))
+    assert layout.decode(int(out["action"][0])) == (0, 1, 3, 5)
+    with set_exploration_type(ExplorationType.RANDOM):
+        actions = explore(heightmap_td(32))["action"]
+    allowed = mask(block_height(1))[0]
+    assert allowed[actions].all()
+    assert len(set(actions.tolist())) > 4  # random, not the greedy action repeated
+
+
+def test_bootstrap_maximises_over_allowed_actions_only():
+    layout = PixelActionLayout(1, R, H, W)
+    maps = torch.zeros(1, *layout.shape)
+    maps[0, 0, 1, 0, 0] = 5.0  # bare table
+    maps[0, 0, 0, 2, 6] = 0.7  # on the block
+    obs = torch.cat([torch.zeros(2, 3, H, W), block_height(2).unsqueeze(1)], dim=1)
+    net = FixedMaps(maps)
+    masked = PixelDQNLoss(net, gamma=0.5, delay_value=False, action_mask=HeightmapActionMask(("grasp",), R).from_observation)
+    plain = PixelDQNLoss(net, gamma=0.5, delay_value=False)
+    torch.testing.assert_close(masked.bootstrap(obs), torch.full((2,), 0.7))
+    torch.testing.assert_close(plain.bootstrap(obs), torch.full((2,), 5.0))
