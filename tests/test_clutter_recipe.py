@@ -6,13 +6,14 @@ import json
 import subprocess
 import sys
 
+import pytest
 import torch
 from tensordict import TensorDict
 from torch import nn
 from torchrl.data import Categorical
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from maniskill_pnp.agents.clutter_recipe import ClutterConfig, load_checkpoint
+from maniskill_pnp.agents.clutter_recipe import ClutterConfig, OutcomeTracker, load_checkpoint
 from maniskill_pnp.agents.pixel_policy import make_pixel_policy
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 
@@ -72,9 +73,9 @@ def test_presets_resolve():
     assert ClutterConfig.from_preset("cpu-small", seed=3).run_name.endswith("seed3")
 
 
-def _train(out, steps: int, *extra: str) -> dict:
+def _train(out, steps: int, *extra: str, preset: str = "cpu-small") -> dict:
     cmd = [
-        sys.executable, "-m", "maniskill_pnp.cli", "train-clutter", "--preset", "cpu-small", "--heightmap-size", "32",
+        sys.executable, "-m", "maniskill_pnp.cli", "train-clutter", "--preset", preset, "--heightmap-size", "32",
         "--num-rotations", "2", "--num-objects", "2", "--steps", str(steps), "--checkpoint-interval", "2",
         "--log-interval", "1", "--out", str(out), *extra,
     ]
@@ -101,3 +102,24 @@ def test_smoke_run_then_resume(tmp_path):
     assert resumed["replay"]["size"] == 5  # the 3 saved transitions were loaded back, 2 new ones added
     assert [p.name for p in run_dir.glob("replay_step*")] == ["replay_step5"]
     assert len((run_dir / "scalars" / "train" / "loss.csv").read_text().splitlines()) >= 5
+
+
+def test_grasp_slide_bce_smoke_run(tmp_path):
+    """The G&S agent's binary-classification baseline trains three FCNs on ClutterGraspSlide-v1."""
+    summary = _train(tmp_path, 2, "--loss", "bce", preset="gs-cpu-small")
+    assert summary["steps"] == 2 and summary["updates"] == 2
+    ckpt = load_checkpoint(tmp_path / "gs-cpu-small_small_r2_px32_seed0" / "checkpoint.pt")
+    assert ClutterConfig.from_json(ckpt["config"]).task == "grasp_slide"
+    assert {key.split(".")[1] for key in ckpt["model"]} == {"grasp", "left_slide", "right_slide"}
+    assert "target_value_network_params" not in str(list(ckpt["loss"]))  # BCE: no bootstrap, no target network
+
+
+def test_outcome_tracker_reads_grasps_places_and_episodes():
+    tracker = OutcomeTracker({"place": 1.0, "grasp": 0.8, "slide": 0.5}, actions_per_primitive=100, window=10)
+    actions = torch.tensor([5, 150, 7, 250, 9])  # grasp, left slide, grasp, right slide, grasp
+    rewards = torch.tensor([1.0, 0.5, 0.0, 0.0, 0.8])
+    done = torch.tensor([False, False, False, False, True])
+    finished = tracker.add(actions, rewards, done, terminated=done)
+    assert tracker.grasp_success == pytest.approx(2 / 3)
+    assert tracker.success_rate == pytest.approx(1 / 5)
+    assert finished == [dict(actions=5, placed=1, success_rate=0.2, completed=True)]

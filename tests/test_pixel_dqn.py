@@ -325,3 +325,29 @@ def test_train_mode_sgd_step_with_target_network():
     assert not torch.equal(net.nets["grasp"].head[-1].weight, before)
     target_w = loss_fn.target_value_network_params.get(("nets", "grasp", "head", "5", "weight"))
     assert torch.equal(target_w, net.nets["grasp"].head[-1].weight)
+
+
+def test_executed_values_equal_the_full_maps_and_give_the_same_gradient():
+    """The training path (executed primitive and rotation only) matches the full maps in eval mode."""
+    torch.manual_seed(3)
+    net = MultiPrimitiveQNetwork(("grasp", "left_slide", "right_slide"), num_rotations=R, backbone="small").eval()
+    layout = PixelActionLayout(3, R, H, W)
+    td = transitions(4, layout, seed=9, terminated=[False, True, False, False])
+    td["action"] = torch.tensor([layout.encode(0, 1, 3, 4), layout.encode(2, 3, 30, 0), layout.encode(1, 0, 0, 31),
+                                 layout.encode(0, 2, 16, 16)])
+    x = td["observation"]
+    with torch.no_grad():
+        full = net(x).reshape(4, -1).gather(1, td["action"][:, None]).squeeze(1)
+        torch.testing.assert_close(net.executed_values(x, td["action"]), full, rtol=1e-5, atol=1e-6)
+
+    grads = []
+    for executed_only in (True, False):
+        loss_fn = PixelDQNLoss(net, gamma=0.5, delay_value=False, executed_only=executed_only)
+        loss_fn(td.clone())["loss_qvalue"].backward()
+        grads.append({k: p.grad.clone() for k, p in net.named_parameters() if p.grad is not None})
+        net.zero_grad(set_to_none=True)
+    assert grads[0].keys() == grads[1].keys() and len(grads[0]) > 0
+    for k in grads[0]:
+        torch.testing.assert_close(grads[0][k], grads[1][k], rtol=1e-4, atol=1e-6)
+    with pytest.raises(ValueError, match="out of range"):
+        net.executed_values(x, torch.tensor([0, 1, 2, layout.size]))

@@ -97,3 +97,16 @@ def test_bootstrap_maximises_over_allowed_actions_only():
     plain = PixelDQNLoss(net, gamma=0.5, delay_value=False)
     torch.testing.assert_close(masked.bootstrap(obs), torch.full((2,), 0.7))
     torch.testing.assert_close(plain.bootstrap(obs), torch.full((2,), 5.0))
+
+
+def test_enabled_restricts_to_grasps_and_no_material_test_allows_all_pixels():
+    layout = PixelActionLayout(3, R, H, W)
+    prims = ("grasp", "left_slide", "right_slide")
+    grasps = HeightmapActionMask(prims, R, enabled=("grasp",))(block_height()).reshape(layout.shape)
+    assert grasps[1:].sum() == 0 and torch.equal(grasps[0, 0], block_height()[0] > 0.01)
+    anywhere = HeightmapActionMask(prims, R, min_height=None, enabled=("grasp",))(block_height()).reshape(layout.shape)
+    assert anywhere[0].all() and anywhere[1:].sum() == 0
+    empty = HeightmapActionMask(prims, R, enabled=("grasp",))(torch.zeros(1, H, W)).reshape(layout.shape)
+    assert empty[0].all() and empty[1:].sum() == 0
+    with pytest.raises(ValueError):
+        HeightmapActionMask(prims, R, enabled=("push",))

@@ -1,11 +1,14 @@
-"""Recipe: pixelwise DQN grasping on ``ClutterGrasp-v1`` (thesis part II), on TorchRL.
+"""Recipe: pixelwise DQN agents on the clutter tasks (thesis parts II and III), on TorchRL.
 
-One agent step is one whole grasp attempt: the ε-greedy actor picks the argmax flat index over (rotation, row, col)
-of the Q maps of the current heightmaps; the env grasps there and places a grasped object in the bin. After every
-step the transition goes into a prioritized replay, one batch is sampled and one SGD step is taken on the pixelwise
-DQN loss (only the executed pixel is trained), and the sampled priorities are refreshed with the new TD errors.
+``task="grasp"`` trains one grasp FCN on ``ClutterGrasp-v1``; ``task="grasp_slide"`` trains the G&S agent, three
+FCNs (grasp, left slide, right slide) on ``ClutterGraspSlide-v1``, acting by the maximum over all their maps.
+One agent step is one whole primitive: the ε-greedy actor picks the argmax flat index over (primitive, rotation,
+row, col) of the Q maps of the current heightmaps; the env executes it. After every step the transition goes into
+a prioritized replay, ``updates_per_step`` batches are sampled, each followed by one SGD step on the pixelwise loss
+(only the executed pixel is trained: the DQN loss, or with ``loss="bce"`` the thesis' binary-classification
+baseline) and a refresh of the sampled priorities.
 
-Run it with ``python -m maniskill_pnp.cli train-clutter --preset cpu-small --seed 1``; a run folder
+Run it with ``maniskill-pnp train-clutter --preset cpu-small --seed 1`` (``--preset gs-cpu-small`` for G&S); a run folder
 ``<out>/<run_name>/`` receives ``config.json``, ``checkpoint.pt`` (written atomically every ``checkpoint_interval``
 steps and at the end), ``train_summary.json`` and the CSV logs (``scalars/train/grasp_success.csv`` ...).
 ``--resume`` continues from the run folder's checkpoint (model, optimizer, target network, ε, step and episode
@@ -17,8 +20,9 @@ it, so a crash between the two leaves the previous pair intact.
 With ``mask_empty`` (the default) the actor and the bootstrap range over the actions that can touch something,
 grasps where the heightmap shows material (:class:`~maniskill_pnp.agents.pixel_mask.HeightmapActionMask`).
 
-Metric: ``grasp_success``, the running fraction of grasp attempts that lifted an object (reward >= 0.5) over the
-last ``success_window`` attempts of the ε-greedy behaviour.
+Metrics of the ε-greedy behaviour (DESIGN.md names), logged as running values over the last ``success_window``
+actions: ``grasp_success`` (grasp attempts that lifted an object / grasp attempts) and ``success_rate`` (objects
+placed in the bin / actions); per finished episode also ``episode/success_rate`` and ``episode/completion``.
 """
 
 from __future__ import annotations
@@ -40,17 +44,22 @@ from tqdm import tqdm
 
 from maniskill_pnp.agents.run_io import RunConfig, atomic_write_bytes, make_logger, write_json
 from maniskill_pnp.agents.pixel_fcn import BACKBONES, MultiPrimitiveQNetwork
-from maniskill_pnp.agents.pixel_loss import PixelDQNLoss
+from maniskill_pnp.agents.pixel_loss import PixelBCELoss, PixelDQNLoss
 from maniskill_pnp.agents.pixel_mask import HeightmapActionMask
 from maniskill_pnp.agents.pixel_policy import heightmap_input, make_pixel_policy
 from maniskill_pnp.agents.pixel_replay import make_pixel_replay, pack_transition, unpack_transition
 
-ENV_ID = "ClutterGrasp-v1"
 CHECKPOINT_FORMAT = "maniskill_pnp.clutter_dqn/1"
-#: Reward of a step whose grasp lifted an object (1: placed in the bin; 0.5: grasped, not placed).
-GRASP_REWARD = 0.5
+#: The tasks a run trains on: env id and the primitives of its action (one FCN each).
+TASKS = {
+    "grasp": dict(env_id="ClutterGrasp-v1", primitives=("grasp",)),
+    "grasp_slide": dict(env_id="ClutterGraspSlide-v1", primitives=("grasp", "left_slide", "right_slide")),
+}
+LOSSES = ("dqn", "bce")
 #: Fields that fix the network's shape or the task: a resumed run must keep them.
-ARCHITECTURE_FIELDS = ("backbone", "use_depth", "head_channels", "num_rotations", "heightmap_size", "workspace_side")
+ARCHITECTURE_FIELDS = (
+    "task", "loss", "backbone", "use_depth", "head_channels", "num_rotations", "heightmap_size", "workspace_side",
+)
 
 
 @dataclass(frozen=True)
@@ -62,6 +71,12 @@ class ClutterConfig(RunConfig):
 
     preset: str = "cpu-small"
     """Name of the preset these values started from (part of the run name)."""
+    task: str = "grasp"
+    """"grasp": one grasp FCN on ClutterGrasp-v1; "grasp_slide": the G&S agent (3 FCNs) on ClutterGraspSlide-v1."""
+    loss: str = "dqn"
+    """"dqn": Huber loss to r + gamma max Q(s'); "bce": the binary-classification baseline (no bootstrapping)."""
+    reward_scheme: str = "default"
+    """Reward scheme of ClutterGraspSlide-v1 ("default" or "no_slide_reward"); must be "default" for task grasp."""
     backbone: str = "small"
     """Feature trunk of the Q network: "densenet121" (thesis), "resnet101" or "small" (ResNet-18 to layer2)."""
     pretrained_path: str | None = None
@@ -76,7 +91,7 @@ class ClutterConfig(RunConfig):
     """Heightmap pixels per side; the pixel size is ``workspace_side / heightmap_size``."""
     workspace_side: float = 0.448
     """Side (m) of the square workspace the heightmap covers (the thesis: 224 px of 2 mm)."""
-    num_objects: int = 3
+    num_objects: int = 10
     """Objects dropped into the workspace each episode."""
     steps: int = 300
     """Grasp attempts (env steps) to train for, counted over resumes."""
@@ -96,7 +111,7 @@ class ClutterConfig(RunConfig):
     """SGD momentum."""
     weight_decay: float = 1e-3
     """SGD weight decay (L2)."""
-    batch_size: int = 8
+    batch_size: int = 4
     """Transitions per sampled replay batch."""
     updates_per_step: int = 1
     """SGD steps (each on a fresh prioritized batch) after every env step."""
@@ -137,6 +152,15 @@ class ClutterConfig(RunConfig):
         object.__setattr__(self, "out", Path(self.out))
         if self.preset not in PRESETS:
             raise ValueError(f"unknown preset {self.preset!r}; valid: {list(PRESETS)}")
+        if self.task not in TASKS:
+            raise ValueError(f"unknown task {self.task!r}; valid: {list(TASKS)}")
+        if self.loss not in LOSSES:
+            raise ValueError(f"unknown loss {self.loss!r}; valid: {list(LOSSES)}")
+        if self.task == "grasp" and self.reward_scheme != "default":
+            raise ValueError(f"reward_scheme {self.reward_scheme!r} needs task 'grasp_slide' (ClutterGrasp-v1 has one scheme)")
+        if self.loss == "bce" and (self.double_dqn or self.delay_value):
+            object.__setattr__(self, "delay_value", False)  # no bootstrap, so no target network
+            object.__setattr__(self, "double_dqn", False)
         if self.backbone not in BACKBONES:
             raise ValueError(f"unknown backbone {self.backbone!r}; valid: {sorted(BACKBONES)}")
         if not 0.0 <= self.gamma <= 1.0:
@@ -167,22 +191,36 @@ class ClutterConfig(RunConfig):
     def run_name(self) -> str:
         return f"{self.preset}_{self.backbone}_r{self.num_rotations}_px{self.heightmap_size}_seed{self.seed}"
 
+    @property
+    def primitives(self) -> tuple[str, ...]:
+        return TASKS[self.task]["primitives"]
 
-#: Overrides of the dataclass defaults per preset.
+
+_THESIS = dict(
+    backbone="densenet121", num_rotations=16, heightmap_size=224, num_objects=10, episodes=3000, steps=90_000,
+    batch_size=1, replay_capacity=50_000, eps_decay_steps=10_000, target_update_interval=500, checkpoint_interval=500,
+    log_interval=50, success_window=200,
+)
+_GS = dict(task="grasp_slide")
+_GS_THESIS = dict(_THESIS, **_GS)
+#: Overrides of the dataclass defaults per preset: part II (grasp) and part III (G&S) with the thesis' ablations.
 PRESETS: dict[str, dict] = {
-    # Thesis part II: DenseNet-121, 16 rotations, 224 px of 2 mm, 3000 episodes of 10 objects.
-    "thesis": dict(
-        backbone="densenet121", num_rotations=16, heightmap_size=224, num_objects=10, episodes=3000, steps=90_000,
-        replay_capacity=50_000, eps_decay_steps=10_000, target_update_interval=500, checkpoint_interval=500,
-        log_interval=50, success_window=200,
-    ),
-    "cpu-small": {},
+    "cpu-small": {},  # grasp-only, small trunk, 4 rotations, 64 px: learns on 2 CPU cores
+    "thesis": _THESIS,  # part II: DenseNet-121, 16 rotations, 224 px of 2 mm, 3000 episodes of 10 objects
+    "gs-cpu-small": _GS,
+    "gs-thesis": _GS_THESIS,  # part III: G&S, DenseNet-121 trunks
+    "gs-resnet101": dict(_GS_THESIS, backbone="resnet101"),
+    "gs-bce": dict(_GS_THESIS, loss="bce"),  # binary-classification baseline
+    "gs-no-slide-reward": dict(_GS_THESIS, reward_scheme="no_slide_reward"),
+    "gs-no-depth": dict(_GS_THESIS, use_depth=False),
+    "gs-double-dqn": dict(_GS_THESIS, double_dqn=True),  # the thesis' future work
 }
 
 
 # ----------------------------------------------------------------------------- factories
-def make_env(cfg: ClutterConfig):
-    """ClutterGrasp-v1 as a TorchRL env, with the config's heightmap size, rotations and object count."""
+def make_env(cfg: ClutterConfig, **task_kwargs):
+    """The config's task as a TorchRL env, with its heightmap size, rotations and object count (``task_kwargs``
+    override or add task options, e.g. ``num_objects="medium"`` or ``layout="complicated"``)."""
     from maniskill_pnp.tasks.workspace import WorkspaceSpec
     from maniskill_pnp.torchrl_env import make_torchrl_env
 
@@ -191,24 +229,27 @@ def make_env(cfg: ClutterConfig):
     workspace = WorkspaceSpec(
         heightmap_size=cfg.heightmap_size, pixel_size=cfg.workspace_side / cfg.heightmap_size, num_rotations=cfg.num_rotations
     )
-    env = make_torchrl_env(
-        ENV_ID, num_objects=cfg.num_objects, workspace=workspace, planner_seed=cfg.seed,
-        sim_backend="physx_cpu", render_backend="cpu",
-    )
-    return env
+    options = dict(num_objects=cfg.num_objects, workspace=workspace, planner_seed=cfg.seed)
+    if cfg.task == "grasp_slide":
+        options["reward_scheme"] = cfg.reward_scheme
+    options.update(task_kwargs)
+    return make_torchrl_env(TASKS[cfg.task]["env_id"], sim_backend="physx_cpu", render_backend="cpu", **options)
 
 
-def make_action_mask(cfg: ClutterConfig) -> HeightmapActionMask | None:
-    """The grasp mask of ``cfg.mask_empty`` (None when off)."""
-    if not cfg.mask_empty:
+def make_action_mask(cfg: ClutterConfig, enabled: tuple[str, ...] | None = None) -> HeightmapActionMask | None:
+    """The action mask of the config: material under grasps / near slides with ``mask_empty``, and only the
+    ``enabled`` primitives (e.g. ``("grasp",)`` for a G&S agent restricted to grasps); None when neither applies."""
+    if not cfg.mask_empty and enabled is None:
         return None
-    return HeightmapActionMask(("grasp",), cfg.num_rotations, min_height=cfg.mask_min_height)
+    return HeightmapActionMask(
+        cfg.primitives, cfg.num_rotations, min_height=cfg.mask_min_height if cfg.mask_empty else None, enabled=enabled
+    )
 
 
 def make_model(cfg: ClutterConfig) -> MultiPrimitiveQNetwork:
-    """The grasp-only pixel Q network: ``(N, 4, H, W) -> (N, 1, R, H, W)``."""
+    """One pixel Q network per primitive of the task: ``(N, 4, H, W) -> (N, P, R, H, W)``."""
     return MultiPrimitiveQNetwork(
-        ("grasp",), num_rotations=cfg.num_rotations, backbone=cfg.backbone, use_depth=cfg.use_depth,
+        cfg.primitives, num_rotations=cfg.num_rotations, backbone=cfg.backbone, use_depth=cfg.use_depth,
         head_channels=cfg.head_channels, pretrained_path=cfg.pretrained_path,
     )
 
@@ -230,6 +271,56 @@ def to_transitions(batch: TensorDictBase) -> TensorDict:
         },
         batch_size=[n],
     )
+
+
+# ----------------------------------------------------------------------------- metrics
+class OutcomeTracker:
+    """Running DESIGN.md metrics of the actions taken, read from the rewards (no env info needed).
+
+    A grasp attempt is an action of primitive 0; it lifted an object when its reward is at least the task's
+    ``rewards["grasp"]``; an object was placed when the reward is at least ``rewards["place"]``.
+
+    Args:
+        rewards: The task's reward table (``env.base_env.rewards``: ``place``, ``grasp`` and maybe ``slide``).
+        actions_per_primitive: ``R * H * W``.
+        window: Actions in the running ``grasp_success`` / ``success_rate``.
+    """
+
+    def __init__(self, rewards: dict, actions_per_primitive: int, window: int):
+        self.place, self.grasp = float(rewards["place"]), float(rewards["grasp"])
+        self.per_primitive = int(actions_per_primitive)
+        self.grasps: deque[bool] = deque(maxlen=window)
+        self.placed: deque[bool] = deque(maxlen=window)
+        self.last_grasps = 0
+        self._episode = dict(actions=0, placed=0)
+
+    def add(self, action: torch.Tensor, reward: torch.Tensor, done: torch.Tensor, terminated: torch.Tensor) -> list[dict]:
+        """Record a batch of steps (one env, in order); returns the episodes they finished."""
+        finished, self.last_grasps = [], 0
+        for a, r, d, t in zip(action.reshape(-1).tolist(), reward.reshape(-1).tolist(), done.reshape(-1).tolist(),
+                              terminated.reshape(-1).tolist()):
+            placed = r >= self.place
+            if a // self.per_primitive == 0:
+                self.grasps.append(r >= self.grasp)
+                self.last_grasps += int(r >= self.grasp)
+            self.placed.append(placed)
+            self._episode["actions"] += 1
+            self._episode["placed"] += int(placed)
+            if d:
+                e = self._episode
+                finished.append(dict(e, success_rate=e["placed"] / e["actions"], completed=bool(t)))
+                self._episode = dict(actions=0, placed=0)
+        return finished
+
+    @property
+    def grasp_success(self) -> float:
+        """Grasp attempts that lifted an object / grasp attempts, over the window (0 before any attempt)."""
+        return sum(self.grasps) / len(self.grasps) if self.grasps else 0.0
+
+    @property
+    def success_rate(self) -> float:
+        """Objects placed / actions, over the window."""
+        return sum(self.placed) / len(self.placed) if self.placed else 0.0
 
 
 # ----------------------------------------------------------------------------- checkpoints
@@ -314,8 +405,11 @@ def main(cfg: ClutterConfig) -> dict:
         replay.loads(saved_replay)
 
     # 4. make the loss, the target-network updater and the optimizer
-    loss = PixelDQNLoss(model, gamma=cfg.gamma, delay_value=cfg.delay_value, double_dqn=cfg.double_dqn,
-                        action_mask=None if mask is None else mask.from_observation)
+    if cfg.loss == "bce":
+        loss, loss_key = PixelBCELoss(model), "loss_bce"
+    else:
+        loss, loss_key = PixelDQNLoss(model, gamma=cfg.gamma, delay_value=cfg.delay_value, double_dqn=cfg.double_dqn,
+                                      action_mask=None if mask is None else mask.from_observation), "loss_qvalue"
     updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval) if cfg.delay_value else None
     optimizer = torch.optim.SGD(loss.parameters(), lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
 
@@ -353,11 +447,11 @@ def main(cfg: ClutterConfig) -> dict:
             if old.name != replay_meta["dir"]:
                 shutil.rmtree(old, ignore_errors=True)
 
-    # 7. main loop: collect one grasp, store it, one prioritized SGD step, refresh priorities, log, checkpoint
-    outcomes: deque[bool] = deque(maxlen=cfg.success_window)
+    # 7. main loop: collect one action, store it, prioritized SGD steps, refresh priorities, log, checkpoint
+    tracker = OutcomeTracker(env.base_env.rewards, cfg.num_rotations * cfg.heightmap_size**2, cfg.success_window)
     last_loss = float("nan")
     t0 = time.perf_counter()
-    bar = tqdm(total=cfg.steps, initial=counters["steps"], desc=f"clutter {cfg.run_name}", unit="grasp")
+    bar = tqdm(total=cfg.steps, initial=counters["steps"], desc=f"{cfg.task} {cfg.run_name}", unit="action")
     for batch in collector:
         batch = batch.reshape(-1)
         n = batch.numel()
@@ -365,11 +459,15 @@ def main(cfg: ClutterConfig) -> dict:
         transitions = to_transitions(batch)
         replay.extend(pack_transition(transitions))
         rewards = transitions.get(("next", "reward"))
-        grasped = (rewards >= GRASP_REWARD).tolist()
-        outcomes.extend(grasped)
+        finished = tracker.add(transitions.get("action"), rewards, transitions.get(("next", "done")),
+                               transitions.get(("next", "terminated")))
         counters["steps"] += n
-        counters["grasps"] += sum(grasped)
-        counters["episodes"] += int(transitions.get(("next", "done")).sum())
+        counters["grasps"] = counters.get("grasps", 0) + tracker.last_grasps
+        counters["episodes"] += len(finished)
+        for episode in finished:
+            logger.log_scalar("episode/success_rate", episode["success_rate"], step=counters["episodes"])
+            logger.log_scalar("episode/completion", float(episode["completed"]), step=counters["episodes"])
+            logger.log_scalar("episode/actions", episode["actions"], step=counters["episodes"])
 
         if len(replay) >= cfg.learning_starts:
             model.train()
@@ -377,19 +475,19 @@ def main(cfg: ClutterConfig) -> dict:
                 sample = unpack_transition(replay.sample())
                 loss_td = loss(sample)
                 optimizer.zero_grad(set_to_none=True)
-                loss_td["loss_qvalue"].backward()
+                loss_td[loss_key].backward()
                 optimizer.step()
                 if updater is not None:
                     updater.step()
                 replay.update_tensordict_priority(sample)
                 counters["updates"] += 1
-                last_loss = loss_td["loss_qvalue"].item()
+                last_loss = loss_td[loss_key].item()
             model.eval()
 
-        running = sum(outcomes) / len(outcomes)
+        running = tracker.grasp_success
         bar.update(n)
-        bar.set_postfix(grasp=f"{running:.2f}", eps=f"{egreedy.eps.item():.2f}", loss=f"{last_loss:.3g}",
-                        episodes=counters["episodes"])
+        bar.set_postfix(grasp=f"{running:.2f}", success=f"{tracker.success_rate:.2f}", eps=f"{egreedy.eps.item():.2f}",
+                        loss=f"{last_loss:.3g}", episodes=counters["episodes"])
         step = counters["steps"]
         done = step >= cfg.steps or (cfg.episodes and counters["episodes"] >= cfg.episodes)
         if step % cfg.log_interval == 0 or done:
@@ -397,6 +495,7 @@ def main(cfg: ClutterConfig) -> dict:
             logger.log_scalar("train/epsilon", egreedy.eps.item(), step=step)
             logger.log_scalar("train/reward", float(rewards.mean()), step=step)
             logger.log_scalar("train/grasp_success", running, step=step)
+            logger.log_scalar("train/success_rate", tracker.success_rate, step=step)
             logger.log_scalar("train/episodes", counters["episodes"], step=step)
             logger.log_scalar("time/wall_s", time.perf_counter() - t0, step=step)
         if step % cfg.checkpoint_interval == 0 or done:
@@ -408,12 +507,13 @@ def main(cfg: ClutterConfig) -> dict:
     env.close()
 
     # 8. summary (the loop wrote the final checkpoint)
-    summary.update(counters, running_grasp_success=sum(outcomes) / max(1, len(outcomes)), wall_s=time.perf_counter() - t0)
+    summary.update(counters, running_grasp_success=running, running_success_rate=tracker.success_rate,
+                   wall_s=time.perf_counter() - t0)
     write_json(run_dir / "train_summary.json", summary)
     return summary
 
 
 __all__ = [
-    "ClutterConfig", "PRESETS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model",
+    "ClutterConfig", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model",
     "save_checkpoint", "to_transitions",
 ]

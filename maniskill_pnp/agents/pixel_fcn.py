@@ -217,25 +217,47 @@ class PixelQNetwork(nn.Module):
             feats.append(self.depth_trunk(depth))
         return torch.cat(feats, dim=1)
 
-    def forward(self, heightmaps: torch.Tensor) -> torch.Tensor:
-        """Q maps ``(*batch, R, H, W)`` of heightmaps ``(*batch, 4, H, W)``."""
+    def _maps_at(self, x: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
+        """Q map ``(N, H, W)`` of each heightmap ``x[n]`` ``(N, 4, H, W)`` at the rotation ``angles[n]`` (rad)."""
+        H, W = x.shape[-2:]
+        S = padded_size(H, W, self.stride)
+        top, left = (S - H) // 2, (S - W) // 2
+        x = rotate_images(F.pad(x, (left, S - W - left, top, S - H - top)), angles)
+        q = self.head(self._features(x))
+        q = F.interpolate(q, size=(S, S), mode="bilinear", align_corners=False)
+        q = rotate_images(q, -angles)
+        return q[:, 0, top : top + H, left : left + W]
+
+    @staticmethod
+    def _check(heightmaps: torch.Tensor) -> None:
         if heightmaps.ndim < 4 or heightmaps.shape[-3] != 4:
             raise ValueError(f"heightmaps must be (..., 4, H, W) (RGB + height), got {tuple(heightmaps.shape)}")
+
+    def forward(self, heightmaps: torch.Tensor) -> torch.Tensor:
+        """Q maps ``(*batch, R, H, W)`` of heightmaps ``(*batch, 4, H, W)``."""
+        self._check(heightmaps)
         batch = heightmaps.shape[:-3]
         H, W = heightmaps.shape[-2:]
         x = heightmaps.reshape(-1, 4, H, W)
         B, R = x.shape[0], self.num_rotations
-        S = padded_size(H, W, self.stride)
-        top, left = (S - H) // 2, (S - W) // 2
-        x = F.pad(x, (left, S - W - left, top, S - H - top))
-        # (B, R, 4, S, S) -> (B*R, 4, S, S): every rotation in one batch.
-        angles = self.angles.repeat(B)
-        x = rotate_images(x.repeat_interleave(R, dim=0), angles)
-        q = self.head(self._features(x))
-        q = F.interpolate(q, size=(S, S), mode="bilinear", align_corners=False)
-        q = rotate_images(q, -angles)
-        q = q[..., top : top + H, left : left + W]
+        # (B, R, 4, H, W) -> (B*R, 4, H, W): every rotation in one batch.
+        q = self._maps_at(x.repeat_interleave(R, dim=0), self.angles.repeat(B))
         return q.reshape(*batch, R, H, W)
+
+    def rotation_maps(self, heightmaps: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
+        """Q map ``(N, H, W)`` of each heightmap ``(N, 4, H, W)`` at its rotation index ``rotation[n]`` only.
+
+        What a training step needs for the executed action: one rotated image per sample instead of ``R``
+        (VPG trains the same way). In eval mode it equals ``forward(heightmaps)[n, rotation[n]]``; in train
+        mode BatchNorm sees a batch of ``N`` images instead of ``N * R``.
+        """
+        self._check(heightmaps)
+        rotation = rotation.reshape(-1).long()
+        if rotation.shape[0] != heightmaps.shape[0] or heightmaps.ndim != 4:
+            raise ValueError(f"need heightmaps (N, 4, H, W) and N rotations, got {tuple(heightmaps.shape)}, {tuple(rotation.shape)}")
+        if rotation.numel() and (int(rotation.min()) < 0 or int(rotation.max()) >= self.num_rotations):
+            raise ValueError(f"rotation index out of range 0..{self.num_rotations - 1}")
+        return self._maps_at(heightmaps, self.angles[rotation])
 
 
 class MultiPrimitiveQNetwork(nn.Module):
@@ -261,3 +283,32 @@ class MultiPrimitiveQNetwork(nn.Module):
     def forward(self, heightmaps: torch.Tensor) -> torch.Tensor:
         """Q maps ``(*batch, P, R, H, W)`` of heightmaps ``(*batch, 4, H, W)``."""
         return torch.stack([self.nets[name](heightmaps) for name in self.primitives], dim=-4)
+
+    def executed_values(self, heightmaps: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """``Q(s, a)`` ``(N,)`` at flat actions ``action`` (N entries) of heightmaps ``(N, 4, H, W)``.
+
+        Equal to ``forward(heightmaps).reshape(N, -1)[n, action[n]]`` in eval mode, but only the executed
+        primitive's network runs, on the executed rotation's image (:meth:`PixelQNetwork.rotation_maps`): a
+        ``P * R`` times smaller forward and backward than the full maps.
+
+        Raises:
+            ValueError: a non-integer action or an index outside ``0..P*R*H*W-1``.
+        """
+        if action.dtype.is_floating_point or action.dtype == torch.bool:
+            raise ValueError(f"actions must be integer flat pixel indices, got dtype {action.dtype}")
+        if heightmaps.ndim != 4 or heightmaps.shape[1] != 4:
+            raise ValueError(f"heightmaps must be (N, 4, H, W), got {tuple(heightmaps.shape)}")
+        n, (H, W), R = heightmaps.shape[0], heightmaps.shape[-2:], self.num_rotations
+        a = action.reshape(n).long()
+        size = len(self.primitives) * R * H * W
+        if n and (int(a.min()) < 0 or int(a.max()) >= size):
+            raise ValueError(f"action index out of range 0..{size - 1}: got {int(a.min())}..{int(a.max())}")
+        primitive, rest = a // (R * H * W), a % (R * H * W)
+        rotation, pixel = rest // (H * W), rest % (H * W)
+        values = heightmaps.new_zeros(n)
+        for p, name in enumerate(self.primitives):
+            rows = (primitive == p).nonzero().squeeze(1)
+            if rows.numel():
+                maps = self.nets[name].rotation_maps(heightmaps[rows], rotation[rows]).reshape(rows.numel(), H * W)
+                values = values.index_put((rows,), maps.gather(1, pixel[rows, None]).squeeze(1))
+        return values

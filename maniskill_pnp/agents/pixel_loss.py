@@ -76,7 +76,8 @@ class _PixelLoss(LossModule):
     value_network_params: TensorDictParams
     target_value_network_params: TensorDictParams
 
-    def __init__(self, value_network: nn.Module, *, delay_value: bool, reduction: str, use_prioritized_weights: bool):
+    def __init__(self, value_network: nn.Module, *, delay_value: bool, reduction: str, use_prioritized_weights: bool,
+                 executed_only: bool):
         if not isinstance(value_network, nn.Module):
             raise ValueError(f"value_network must be an nn.Module, got {type(value_network).__name__}")
         if reduction not in _REDUCTIONS:
@@ -85,6 +86,7 @@ class _PixelLoss(LossModule):
         self.delay_value = delay_value
         self.reduction = reduction
         self.use_prioritized_weights = use_prioritized_weights
+        self.executed_only = executed_only
         self.convert_to_functional(value_network, "value_network", create_target_params=delay_value)
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
@@ -93,6 +95,14 @@ class _PixelLoss(LossModule):
     def _maps(self, observation: torch.Tensor, params: TensorDictBase) -> torch.Tensor:
         with params.to_module(self.value_network):
             return self.value_network(observation)
+
+    def _executed(self, observation: torch.Tensor, action: torch.Tensor, n: int) -> torch.Tensor:
+        """Online ``Q(s, a)`` ``(n,)``; only the executed maps are computed when the network offers
+        ``executed_values`` (e.g. :class:`~maniskill_pnp.agents.pixel_fcn.MultiPrimitiveQNetwork`)."""
+        if self.executed_only and hasattr(self.value_network, "executed_values"):
+            with self.value_network_params.to_module(self.value_network):
+                return self.value_network.executed_values(observation, action.reshape(n))
+        return executed_values(self._maps(observation, self.value_network_params), action, n)
 
     def _batch(self, tensordict: TensorDictBase) -> int:
         if tensordict.batch_dims == 0:
@@ -131,6 +141,9 @@ class PixelDQNLoss(_PixelLoss):
         use_prioritized_weights: Multiply by ``"priority_weight"`` when the tensordict holds it.
         action_mask: Optional ``observation (N, 4, H, W) -> bool (N, *flat action)`` restricting the bootstrap's
             max (e.g. ``HeightmapActionMask(...).from_observation``), the same mask the actor acts under.
+        executed_only: Compute the online ``Q(s, a)`` from the executed primitive and rotation only, when the
+            network offers ``executed_values`` (the gradient is the same; BatchNorm's train-mode statistics come
+            from the executed images). False: the full maps, as the module docstring describes.
 
     Example:
         >>> from torchrl.objectives import HardUpdate
@@ -151,6 +164,7 @@ class PixelDQNLoss(_PixelLoss):
         reduction: str = "mean",
         use_prioritized_weights: bool = True,
         action_mask: Callable[[torch.Tensor], torch.Tensor] | None = None,
+        executed_only: bool = True,
     ):
         if not 0.0 <= gamma <= 1.0:
             raise ValueError(f"gamma must be in [0, 1], got {gamma!r}")
@@ -159,7 +173,8 @@ class PixelDQNLoss(_PixelLoss):
         if not huber_delta > 0:
             raise ValueError(f"huber_delta must be > 0, got {huber_delta!r}")
         super().__init__(
-            value_network, delay_value=delay_value, reduction=reduction, use_prioritized_weights=use_prioritized_weights
+            value_network, delay_value=delay_value, reduction=reduction, use_prioritized_weights=use_prioritized_weights,
+            executed_only=executed_only,
         )
         self.gamma = float(gamma)
         self.double_dqn = double_dqn
@@ -186,7 +201,7 @@ class PixelDQNLoss(_PixelLoss):
         keys = self.tensor_keys
         obs = tensordict.get(keys.observation)
         obs = obs.reshape(n, *obs.shape[tensordict.batch_dims :])
-        q = executed_values(self._maps(obs, self.value_network_params), tensordict.get(keys.action), n)
+        q = self._executed(obs, tensordict.get(keys.action), n)
 
         reward = tensordict.get(("next", keys.reward)).reshape(n).to(q.dtype)
         terminated = tensordict.get(("next", keys.terminated), default=None)
@@ -217,6 +232,7 @@ class PixelBCELoss(_PixelLoss):
         success_threshold: Rewards strictly above it count as a success.
         reduction: ``"mean"``, ``"sum"`` or ``"none"`` over the batch.
         use_prioritized_weights: Multiply by ``"priority_weight"`` when the tensordict holds it.
+        executed_only: As for :class:`PixelDQNLoss`.
     """
 
     def __init__(
@@ -226,9 +242,11 @@ class PixelBCELoss(_PixelLoss):
         success_threshold: float = 0.0,
         reduction: str = "mean",
         use_prioritized_weights: bool = True,
+        executed_only: bool = True,
     ):
         super().__init__(
-            value_network, delay_value=False, reduction=reduction, use_prioritized_weights=use_prioritized_weights
+            value_network, delay_value=False, reduction=reduction, use_prioritized_weights=use_prioritized_weights,
+            executed_only=executed_only,
         )
         self.success_threshold = float(success_threshold)
 
@@ -238,7 +256,7 @@ class PixelBCELoss(_PixelLoss):
         keys = self.tensor_keys
         obs = tensordict.get(keys.observation)
         obs = obs.reshape(n, *obs.shape[tensordict.batch_dims :])
-        logit = executed_values(self._maps(obs, self.value_network_params), tensordict.get(keys.action), n)
+        logit = self._executed(obs, tensordict.get(keys.action), n)
         label = (tensordict.get(("next", keys.reward)).reshape(n) > self.success_threshold).to(logit.dtype)
         self._write_priority(tensordict, (label - logit.detach().sigmoid()).abs())
         loss = F.binary_cross_entropy_with_logits(logit, label, reduction="none")

@@ -33,14 +33,18 @@ class HeightmapActionMask:
     Args:
         primitives: Primitive names in action order (``"grasp"``, ``"left_slide"``, ``"right_slide"``).
         num_rotations: Rotations per primitive (the mask is the same for every rotation).
-        min_height: A pixel holds material when its height above the table (m) is more than this.
+        min_height: A pixel holds material when its height above the table (m) is more than this; None: no
+            material test (every pixel of an enabled primitive is allowed).
         slide_reach_px: A slide may start within this many pixels (Chebyshev distance) of material.
+        enabled: Primitives that may act at all (None: all); the others are masked out everywhere, e.g.
+            ``("grasp",)`` restricts a grasp-and-slide agent to its grasps.
     """
 
     primitives: tuple[str, ...]
     num_rotations: int
-    min_height: float = 0.01
+    min_height: float | None = 0.01
     slide_reach_px: int = 3
+    enabled: tuple[str, ...] | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "primitives", tuple(self.primitives))
@@ -49,18 +53,25 @@ class HeightmapActionMask:
             raise ValueError(f"primitives must be names among {(GRASP, *SLIDES)}, got {self.primitives!r}")
         if not isinstance(self.num_rotations, int) or self.num_rotations < 1:
             raise ValueError(f"num_rotations must be a positive int, got {self.num_rotations!r}")
-        if self.min_height < 0 or self.slide_reach_px < 0:
+        if (self.min_height is not None and self.min_height < 0) or self.slide_reach_px < 0:
             raise ValueError(f"min_height and slide_reach_px must be >= 0, got {self.min_height}, {self.slide_reach_px}")
+        if self.enabled is not None:
+            object.__setattr__(self, "enabled", tuple(self.enabled))
+            if not self.enabled or set(self.enabled) - set(self.primitives):
+                raise ValueError(f"enabled must be a non-empty subset of {self.primitives}, got {self.enabled!r}")
 
     def pixel_masks(self, height: torch.Tensor) -> torch.Tensor:
         """Per-primitive pixel masks ``(*B, P, H, W)`` of heights ``(*B, H, W)`` (m above the table)."""
         if height.ndim < 2:
             raise ValueError(f"height must be (*B, H, W), got shape {tuple(height.shape)}")
         batch, (h, w) = height.shape[:-2], height.shape[-2:]
-        occupied = (height.reshape(-1, 1, h, w) > self.min_height)
+        flat = height.reshape(-1, 1, h, w)
+        occupied = flat > self.min_height if self.min_height is not None else torch.ones_like(flat, dtype=torch.bool)
         masks = []
         for name in self.primitives:
-            if name == GRASP or self.slide_reach_px == 0:
+            if self.enabled is not None and name not in self.enabled:
+                masks.append(torch.zeros_like(occupied))
+            elif name == GRASP or self.slide_reach_px == 0:
                 masks.append(occupied)
             else:
                 k = 2 * self.slide_reach_px + 1
@@ -68,11 +79,19 @@ class HeightmapActionMask:
         return torch.cat(masks, dim=1).reshape(*batch, len(self.primitives), h, w)
 
     def __call__(self, height: torch.Tensor) -> torch.Tensor:
-        """Flat action mask ``(*B, P*R*H*W)`` (PixelActionLayout order); all True where nothing is occupied."""
+        """Flat action mask ``(*B, P*R*H*W)`` (PixelActionLayout order).
+
+        Where the material test leaves no action (nothing on the table), every action of the enabled primitives
+        is allowed, so the mask is never empty.
+        """
         pix = self.pixel_masks(height)
         flat = pix.unsqueeze(-3).expand(*pix.shape[:-2], self.num_rotations, *pix.shape[-2:]).flatten(-4)
         empty = ~flat.any(dim=-1, keepdim=True)
-        return flat | empty
+        if self.enabled is None:
+            return flat | empty
+        on = torch.tensor([p in self.enabled for p in self.primitives], device=flat.device)
+        on = on.repeat_interleave(flat.shape[-1] // len(self.primitives))
+        return flat | (empty & on)
 
     def from_observation(self, observation: torch.Tensor) -> torch.Tensor:
         """Flat mask of network inputs ``(*B, 4, H, W)`` (height in channel 3)."""
