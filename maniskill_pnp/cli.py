@@ -30,6 +30,71 @@ def _bench(args) -> None:
         from maniskill_pnp.bench.conveyor import ConveyorBenchConfig, run as run_conveyor
 
         run_conveyor(ConveyorBenchConfig(iterations=args.iterations, out=args.out))
+    elif args.which in ("pixel-memory", "decision-cost"):
+        _bench_pixel_dqn(args)
+
+
+def _bench_pixel_dqn(args) -> None:
+    """pixel-memory and decision-cost: the size options given on the command line override the configs' defaults."""
+    from maniskill_pnp.bench import pixel_dqn
+
+    given = dict(backbone=args.backbone, num_rotations=args.rotations, heightmap_size=args.heightmap_size,
+                 repeats=args.repeats, device=args.device, threads=args.threads)
+    given = {k: v for k, v in given.items() if v is not None}
+    try:
+        if args.which == "pixel-memory":
+            if args.num_primitives is not None and len(args.num_primitives) != 1:
+                raise ValueError(f"pixel-memory measures one network: give one --num-primitives, got {args.num_primitives}")
+            extra = dict(num_primitives=args.num_primitives[0]) if args.num_primitives else {}
+            if args.max_rss_gb is not None:
+                extra["max_rss_gb"] = args.max_rss_gb
+            cfg = pixel_dqn.PixelMemoryBenchConfig(**given, **extra, out=args.out / "pixel_memory.json")
+            run = pixel_dqn.run_pixel_memory
+        else:
+            extra = dict(num_primitives=tuple(args.num_primitives)) if args.num_primitives else {}
+            if args.warmup is not None:
+                extra["warmup"] = args.warmup
+            cfg = pixel_dqn.DecisionCostBenchConfig(**given, **extra, out=args.out / "decision_cost.json")
+            run = pixel_dqn.run_decision_cost
+    except ValueError as e:
+        raise SystemExit(f"bench {args.which}: {e}") from e
+    run(cfg)
+
+
+def _add_pixel_bench_args(bench: argparse.ArgumentParser) -> None:
+    """The size options of ``bench pixel-memory`` and ``bench decision-cost``; defaults shown from their configs."""
+    import dataclasses
+
+    from maniskill_pnp.agents.pixel_fcn import BACKBONES
+    from maniskill_pnp.bench.pixel_dqn import DecisionCostBenchConfig, PixelMemoryBenchConfig
+
+    mem = {f.name: f.default for f in dataclasses.fields(PixelMemoryBenchConfig)}
+    dec = {f.name: f.default for f in dataclasses.fields(DecisionCostBenchConfig)}
+    pixel = "pixel-memory, decision-cost: "
+
+    def default(name: str) -> str:
+        if mem.get(name) == dec.get(name) or name not in mem or name not in dec:
+            return f"(default: {mem.get(name, dec.get(name))})"
+        return f"(default: {mem[name]} / {dec[name]})"
+
+    bench.add_argument("--backbone", choices=sorted(BACKBONES), default=None,
+                       help=pixel + "trunk of the Q networks; pixel-memory takes densenet121 only " + default("backbone"))
+    bench.add_argument("--rotations", type=int, default=None, help=pixel + "rotations per primitive " + default("num_rotations"))
+    bench.add_argument("--heightmap-size", type=int, default=None,
+                       help=pixel + "heightmap pixels per side " + default("heightmap_size"))
+    bench.add_argument("--num-primitives", type=int, nargs="+", default=None,
+                       help=pixel + "network sizes, each the first N of grasp, left_slide, right_slide; pixel-memory takes "
+                       "one N, decision-cost one or more " + default("num_primitives"))
+    bench.add_argument("--repeats", type=int, default=None,
+                       help=pixel + "training steps per variant / timed decisions and trunk passes " + default("repeats"))
+    bench.add_argument("--warmup", type=int, default=None, help="decision-cost: untimed warm-up rounds " + default("warmup"))
+    bench.add_argument("--device", default=None, help=pixel + "torch device; auto: CUDA when available " + default("device"))
+    bench.add_argument("--threads", type=int, default=None,
+                       help=pixel + "CPU threads of torch; 1 keeps timings steady while other jobs share the cores "
+                       "(default: torch's own)")
+    bench.add_argument("--max-rss-gb", type=float, default=None,
+                       help="pixel-memory: kill a variant whose resident memory passes this many GiB and report it as "
+                       "exceeded (default: 90%% of the memory available at the start)")
 
 
 def _train_conveyor(args) -> None:
@@ -62,6 +127,36 @@ def _train_clutter(args) -> None:
     except ValueError as e:
         raise SystemExit(f"train-clutter: {e}") from e
     print(json.dumps(main(cfg), indent=2))
+
+
+def _eval_clutter(args) -> None:
+    import dataclasses
+
+    from maniskill_pnp.agents.clutter_eval import METRICS, ClutterEvalConfig, run
+
+    try:
+        summary = run(ClutterEvalConfig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(ClutterEvalConfig)}))
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"eval-clutter: {e}") from e
+    print(json.dumps({k: summary["metrics"][k] for k in METRICS}, indent=2))
+    print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
+
+
+def _add_clutter_eval_args(parser: argparse.ArgumentParser) -> None:
+    """The checkpoint argument and one option per other ClutterEvalConfig field; help = field docstring."""
+    import dataclasses
+
+    from maniskill_pnp.agents.clutter_eval import ClutterEvalConfig
+    from maniskill_pnp.agents.run_io import field_docs
+
+    docs = field_docs(ClutterEvalConfig)
+    parser.add_argument("checkpoint", type=Path, help=docs["checkpoint"])
+    types = dict(out=Path, device=str)
+    for f in dataclasses.fields(ClutterEvalConfig):
+        if f.name == "checkpoint":
+            continue
+        help_text = docs[f.name].replace("%", "%%") + " (default: %(default)s)"
+        parser.add_argument("--" + f.name.replace("_", "-"), type=types.get(f.name, int), default=f.default, help=help_text)
 
 
 def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:
@@ -132,14 +227,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="run a benchmark; prints numbers and writes JSON")
     bench.add_argument(
-        "which", choices=["primitives", "clutter-oracle", "conveyor"],
+        "which", choices=["primitives", "clutter-oracle", "conveyor", "pixel-memory", "decision-cost"],
         help="primitives: pick-and-place success, planning and wall time; "
         "clutter-oracle: ClutterGrasp-v1 cleared by the scripted heightmap oracle (10 objects, --episodes scenes); "
-        "conveyor: train Q-learning and SARSA with the default config, then the random test cases",
+        "conveyor: train Q-learning and SARSA with the default config, then the random test cases; "
+        "pixel-memory: peak memory and time of one training step of a pixel Q network, DenseNet memory_efficient "
+        "on vs off, each in a fresh process; decision-cost: time of one greedy decision / time of its bare trunk "
+        "forwards (target <= 1.3); both sized by the options below",
     )
     bench.add_argument("--episodes", type=int, default=20, help="seeded episodes (primitives) or scenes (clutter-oracle) (default: %(default)s)")
     bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="folder for the JSON report (default: %(default)s)")
     bench.add_argument("--iterations", type=int, default=50, help="conveyor: iterations per random test case (default: %(default)s)")
+    _add_pixel_bench_args(bench)
     bench.set_defaults(func=_bench)
 
     train = sub.add_parser("train-conveyor", help="train tabular Q-learning or SARSA on ConveyorProximity-v1 (thesis ch. 4)")
@@ -160,6 +259,10 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--curves", nargs="*", type=Path,
                     help="run folders whose CSV logs to plot as learning curves (default: the checkpoints' run folders)")
     ev.set_defaults(func=_eval_conveyor)
+
+    evc = sub.add_parser("eval-clutter", help="greedy evaluation of a ClutterGrasp-v1 DQN checkpoint: DESIGN.md metrics, tables, Q-map figure")
+    _add_clutter_eval_args(evc)
+    evc.set_defaults(func=_eval_clutter)
     return parser
 
 

@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import torch
 from tensordict import TensorDict
@@ -13,6 +14,7 @@ from torch import nn
 from torchrl.data import Categorical
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from maniskill_pnp.agents.clutter_curves import load_actions, plot_training_curves, run_curves, trailing_mean
 from maniskill_pnp.agents.clutter_recipe import ClutterConfig, OutcomeTracker, load_checkpoint
 from maniskill_pnp.agents.pixel_policy import make_pixel_policy
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
@@ -101,6 +103,7 @@ def test_smoke_run_then_resume(tmp_path):
     assert resumed["counters"]["steps"] == 5
     assert resumed["replay"]["size"] == 5  # the 3 saved transitions were loaded back, 2 new ones added
     assert [p.name for p in run_dir.glob("replay_step*")] == ["replay_step5"]
+    assert load_actions(run_dir)["step"].tolist() == [1, 2, 3, 4, 5]  # one row per action, across the resume
     assert len((run_dir / "scalars" / "train" / "loss.csv").read_text().splitlines()) >= 5
 
 
@@ -123,3 +126,35 @@ def test_outcome_tracker_reads_grasps_places_and_episodes():
     assert tracker.grasp_success == pytest.approx(2 / 3)
     assert tracker.success_rate == pytest.approx(1 / 5)
     assert finished == [dict(actions=5, placed=1, success_rate=0.2, completed=True)]
+
+
+def test_action_log_survives_a_resume_and_feeds_the_curves(tmp_path):
+    rewards = {"place": 1.0, "grasp": 0.5}
+    tracker = OutcomeTracker(rewards, actions_per_primitive=10, window=4, log_path=tmp_path / "actions.csv")
+    tracker.add(torch.arange(6), torch.tensor([0.0, 0.0, 1.0, 0.5, 1.0, 0.0]), torch.zeros(6, dtype=torch.bool),
+                torch.zeros(6, dtype=torch.bool))
+    tracker.close()
+    # resume from a checkpoint taken at step 4: rows 5 and 6 are dropped, then 4 new actions follow
+    tracker = OutcomeTracker(rewards, 10, 4, log_path=tmp_path / "actions.csv", start_step=4)
+    tracker.add(torch.arange(4), torch.tensor([1.0, 1.0, 1.0, 0.0]), torch.zeros(4, dtype=torch.bool),
+                torch.zeros(4, dtype=torch.bool))
+    tracker.close()
+    a = load_actions(tmp_path)
+    assert a["step"].tolist() == list(range(1, 9))
+    assert a["placed"].tolist() == [0, 0, 1, 0, 1, 1, 1, 0]
+    c = run_curves(tmp_path, window=4)
+    assert c["first"] == dict(grasp_success=0.5, success_rate=0.25, actions=4)
+    assert c["last"] == dict(grasp_success=0.75, success_rate=0.75, actions=4)
+    summary = plot_training_curves({"run": tmp_path}, tmp_path / "curves.png", window=4)
+    assert summary["run"]["last"]["success_rate"] == 0.75
+    import matplotlib.image
+    assert matplotlib.image.imread(tmp_path / "curves.png").shape[2] in (3, 4)
+
+
+def test_trailing_mean_by_hand():
+    hits, counts = np.array([1.0, 0.0, 1.0, 1.0]), np.array([1.0, 0.0, 1.0, 1.0])
+    np.testing.assert_allclose(trailing_mean(hits, counts, 2), [1.0, 1.0, 1.0, 1.0])
+    np.testing.assert_allclose(trailing_mean(np.array([0.0, 1.0, 1.0]), np.ones(3), 2), [0.0, 0.5, 1.0])
+    assert np.isnan(trailing_mean(np.zeros(2), np.zeros(2), 2)).all()
+    with pytest.raises(FileNotFoundError):
+        load_actions("/nonexistent/run")

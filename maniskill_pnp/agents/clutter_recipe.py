@@ -10,7 +10,7 @@ baseline) and a refresh of the sampled priorities.
 
 Run it with ``maniskill-pnp train-clutter --preset cpu-small --seed 1`` (``--preset gs-cpu-small`` for G&S); a run folder
 ``<out>/<run_name>/`` receives ``config.json``, ``checkpoint.pt`` (written atomically every ``checkpoint_interval``
-steps and at the end), ``train_summary.json`` and the CSV logs (``scalars/train/grasp_success.csv`` ...).
+steps and at the end), ``train_summary.json``, ``actions.csv`` (one row per action, see :data:`ACTION_COLUMNS`) and the CSV logs (``scalars/train/grasp_success.csv`` ...).
 ``--resume`` continues from the run folder's checkpoint (model, optimizer, target network, ε, step and episode
 counters, RNG states) and, with ``save_replay`` (the default), from the replay buffer saved beside it
 (``replay_step<N>/``: TorchRL's ``ReplayBuffer.dumps`` of the storage, priorities and writer; about 40 kB per
@@ -280,19 +280,30 @@ class OutcomeTracker:
     A grasp attempt is an action of primitive 0; it lifted an object when its reward is at least the task's
     ``rewards["grasp"]``; an object was placed when the reward is at least ``rewards["place"]``.
 
+    With ``log_path`` every action is appended as a row of :data:`ACTION_COLUMNS` to that CSV (``actions.csv`` of a
+    run, read by :mod:`maniskill_pnp.agents.clutter_curves`); rows past ``start_step`` (written after the checkpoint
+    a run resumes from) are dropped first, so the file always matches the checkpoint's history.
+
     Args:
         rewards: The task's reward table (``env.base_env.rewards``: ``place``, ``grasp`` and maybe ``slide``).
         actions_per_primitive: ``R * H * W``.
         window: Actions in the running ``grasp_success`` / ``success_rate``.
+        log_path: Optional per-action CSV.
+        start_step: Actions already taken (the checkpoint's step counter) when resuming.
     """
 
-    def __init__(self, rewards: dict, actions_per_primitive: int, window: int):
+    def __init__(self, rewards: dict, actions_per_primitive: int, window: int, log_path: Path | None = None,
+                 start_step: int = 0):
         self.place, self.grasp = float(rewards["place"]), float(rewards["grasp"])
         self.per_primitive = int(actions_per_primitive)
         self.grasps: deque[bool] = deque(maxlen=window)
         self.placed: deque[bool] = deque(maxlen=window)
         self.last_grasps = 0
+        self.step = int(start_step)
         self._episode = dict(actions=0, placed=0)
+        self._log = None
+        if log_path is not None:
+            self._log = _open_action_log(Path(log_path), self.step)
 
     def add(self, action: torch.Tensor, reward: torch.Tensor, done: torch.Tensor, terminated: torch.Tensor) -> list[dict]:
         """Record a batch of steps (one env, in order); returns the episodes they finished."""
@@ -300,17 +311,28 @@ class OutcomeTracker:
         for a, r, d, t in zip(action.reshape(-1).tolist(), reward.reshape(-1).tolist(), done.reshape(-1).tolist(),
                               terminated.reshape(-1).tolist()):
             placed = r >= self.place
-            if a // self.per_primitive == 0:
+            primitive = a // self.per_primitive
+            if primitive == 0:
                 self.grasps.append(r >= self.grasp)
                 self.last_grasps += int(r >= self.grasp)
             self.placed.append(placed)
+            self.step += 1
+            if self._log is not None:
+                self._log.write(f"{self.step},{primitive},{a},{r:.4g},{int(primitive == 0)},"
+                                f"{int(primitive == 0 and r >= self.grasp)},{int(placed)},{int(d)}\n")
             self._episode["actions"] += 1
             self._episode["placed"] += int(placed)
             if d:
                 e = self._episode
                 finished.append(dict(e, success_rate=e["placed"] / e["actions"], completed=bool(t)))
                 self._episode = dict(actions=0, placed=0)
+        if self._log is not None:
+            self._log.flush()
         return finished
+
+    def close(self) -> None:
+        if self._log is not None:
+            self._log.close()
 
     @property
     def grasp_success(self) -> float:
@@ -321,6 +343,24 @@ class OutcomeTracker:
     def success_rate(self) -> float:
         """Objects placed / actions, over the window."""
         return sum(self.placed) / len(self.placed) if self.placed else 0.0
+
+
+#: Columns of a run's ``actions.csv``: one row per action of the ε-greedy behaviour.
+ACTION_COLUMNS = ("step", "primitive", "action", "reward", "grasp_attempt", "grasped", "placed", "episode_end")
+
+
+def _open_action_log(path: Path, start_step: int):
+    """Open ``path`` for appending, after dropping the rows past ``start_step`` (and any torn last line)."""
+    keep = []
+    if path.is_file() and start_step > 0:
+        lines = path.read_text().splitlines()
+        for line in lines[1:]:
+            parts = line.split(",")
+            if len(parts) == len(ACTION_COLUMNS) and parts[0].isdigit() and int(parts[0]) <= start_step:
+                keep.append(line)
+    with open(path, "w") as f:
+        f.write(",".join(ACTION_COLUMNS) + "\n" + "".join(line + "\n" for line in keep))
+    return open(path, "a")
 
 
 # ----------------------------------------------------------------------------- checkpoints
@@ -448,7 +488,8 @@ def main(cfg: ClutterConfig) -> dict:
                 shutil.rmtree(old, ignore_errors=True)
 
     # 7. main loop: collect one action, store it, prioritized SGD steps, refresh priorities, log, checkpoint
-    tracker = OutcomeTracker(env.base_env.rewards, cfg.num_rotations * cfg.heightmap_size**2, cfg.success_window)
+    tracker = OutcomeTracker(env.base_env.rewards, cfg.num_rotations * cfg.heightmap_size**2, cfg.success_window,
+                             log_path=run_dir / "actions.csv", start_step=counters["steps"])
     last_loss = float("nan")
     t0 = time.perf_counter()
     bar = tqdm(total=cfg.steps, initial=counters["steps"], desc=f"{cfg.task} {cfg.run_name}", unit="action")
@@ -503,6 +544,7 @@ def main(cfg: ClutterConfig) -> dict:
         if done:
             break
     bar.close()
+    tracker.close()
     collector.shutdown()
     env.close()
 
@@ -514,6 +556,6 @@ def main(cfg: ClutterConfig) -> dict:
 
 
 __all__ = [
-    "ClutterConfig", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model",
+    "ACTION_COLUMNS", "ClutterConfig", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model",
     "save_checkpoint", "to_transitions",
 ]

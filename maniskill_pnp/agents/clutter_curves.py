@@ -1,0 +1,113 @@
+"""Training curves of clutter runs: windowed grasp success and success rate from each run's ``actions.csv``.
+
+Every clutter run (:mod:`maniskill_pnp.agents.clutter_recipe`) writes one row per action of its ε-greedy behaviour.
+From it this module computes the trailing-window metrics of DESIGN.md (``grasp_success``: grasps that lifted an
+object / grasp attempts; ``success_rate``: objects placed / actions), the first- and last-window numbers a learning
+claim rests on, and one PNG comparing runs (as the thesis' Figs. 25-28 compare its variants).
+
+Example:
+    >>> summary = plot_training_curves({"G&S": "runs/clutter/gs-cpu-small_...", "grasp only": "runs/..."},
+    ...                                "curves.png", window=50)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from maniskill_pnp.agents.clutter_recipe import ACTION_COLUMNS
+
+
+def load_actions(run_dir: str | Path) -> dict[str, np.ndarray]:
+    """The columns of ``<run_dir>/actions.csv`` as arrays (``ACTION_COLUMNS``).
+
+    Raises:
+        FileNotFoundError: the run folder has no ``actions.csv``.
+        ValueError: the file's header is not ``ACTION_COLUMNS`` or it holds no action.
+    """
+    path = Path(run_dir) / "actions.csv"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} does not exist (is {run_dir} a clutter training run folder?)")
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows or tuple(rows[0]) != ACTION_COLUMNS:
+        raise ValueError(f"{path} does not start with the header {','.join(ACTION_COLUMNS)}")
+    body = [r for r in rows[1:] if len(r) == len(ACTION_COLUMNS)]
+    if not body:
+        raise ValueError(f"{path} holds no action yet")
+    cols = np.array(body, dtype=np.float64).T
+    return {name: cols[i] for i, name in enumerate(ACTION_COLUMNS)}
+
+
+def trailing_mean(hits: np.ndarray, counts: np.ndarray, window: int) -> np.ndarray:
+    """Per action ``i``: ``sum(hits) / sum(counts)`` over the last ``window`` actions up to ``i`` (NaN if no count)."""
+    if window < 1:
+        raise ValueError(f"window must be >= 1, got {window}")
+    h, c = np.cumsum(np.r_[0.0, hits]), np.cumsum(np.r_[0.0, counts])
+    lo = np.maximum(np.arange(1, len(hits) + 1) - window, 0)
+    num, den = h[1:] - h[lo], c[1:] - c[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, num / np.maximum(den, 1e-12), np.nan)
+
+
+def run_curves(run_dir: str | Path, window: int = 50) -> dict:
+    """Windowed curves of one run and its first / last window numbers.
+
+    Returns:
+        ``step``, ``grasp_success`` and ``success_rate`` arrays (trailing ``window`` actions), and ``first`` /
+        ``last``: ``grasp_success`` and ``success_rate`` over the first and the last ``window`` actions.
+    """
+    a = load_actions(run_dir)
+    ones = np.ones_like(a["placed"])
+    out = dict(
+        step=a["step"],
+        grasp_success=trailing_mean(a["grasped"], a["grasp_attempt"], window),
+        success_rate=trailing_mean(a["placed"], ones, window),
+        actions=len(ones),
+    )
+    for name, part in (("first", slice(0, window)), ("last", slice(-window, None))):
+        attempts = a["grasp_attempt"][part].sum()
+        out[name] = dict(
+            grasp_success=float(a["grasped"][part].sum() / attempts) if attempts else float("nan"),
+            success_rate=float(a["placed"][part].mean()),
+            actions=int(len(a["placed"][part])),
+        )
+    return out
+
+
+def plot_training_curves(runs: dict[str, str | Path], out_png: str | Path, window: int = 50) -> dict[str, dict]:
+    """One PNG with two panels (grasp success, success rate vs. action) holding every run; returns each run's
+    ``first`` / ``last`` numbers (see :func:`run_curves`)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not runs:
+        raise ValueError("give at least one run folder")
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), sharex=True)
+    summary = {}
+    for label, run_dir in runs.items():
+        c = run_curves(run_dir, window)
+        summary[label] = dict(first=c["first"], last=c["last"], actions=c["actions"])
+        for ax, key in zip(axes, ("grasp_success", "success_rate")):
+            ax.plot(c["step"], c[key], label=f"{label} (last {window}: {c['last'][key]:.0%})")
+    for ax, key in zip(axes, ("grasp_success", "success_rate")):
+        ax.set_xlabel("action")
+        ax.set_ylabel(f"{key} (trailing {window} actions)")
+        ax.set_ylim(0, 1)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="lower right", fontsize=8)
+    axes[0].set_title("grasps that lifted an object / grasp attempts")
+    axes[1].set_title("objects placed / actions")
+    fig.tight_layout()
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+    return summary
+
+
+__all__ = ["load_actions", "plot_training_curves", "run_curves", "trailing_mean"]

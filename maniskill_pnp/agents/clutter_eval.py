@@ -1,0 +1,332 @@
+"""Greedy evaluation of a ClutterGrasp-v1 pixelwise DQN checkpoint (thesis part II), with the DESIGN.md metrics.
+
+The network of a ``checkpoint.pt`` written by :func:`~maniskill_pnp.agents.clutter_recipe.save_checkpoint` is rebuilt
+from the checkpoint's own config and run greedily (argmax of the Q maps, no ε) over seeded scenes: episode ``i`` is
+reset with seed ``seed + i``. The default seed 1000 keeps the test scenes apart from the small seeds training uses.
+An episode ends when the workspace is clear, when the task truncates it (too many consecutive failed grasps or
+actions) or after ``max_steps`` grasp attempts.
+
+Metrics (DESIGN.md names, computed from the env's ``info`` of every step):
+
+* ``success_rate`` (thesis): objects placed in the bin / actions, per episode, averaged over episodes.
+* ``grasp_success``: successful grasps / grasp attempts, over all episodes.
+* ``completion`` (VPG): episodes cleared with no run of more than :data:`MAX_FAILURE_RUN` consecutive failed grasps
+  / episodes.
+* ``action_efficiency`` (VPG): objects / actions, summed over the completed episodes (0 when none completed, as in
+  :mod:`maniskill_pnp.bench.clutter_oracle`).
+
+Files written into ``out``: ``eval_summary.json`` (metrics, per-episode records, both configs), ``eval_table.md``
+and ``eval_table.csv`` (one row per episode and an ``all`` row), and ``q_heatmaps.png``: the colour and depth
+heightmaps of the first state of the first episode beside the Q map of every rotation (one colour scale; the chosen
+``(rotation, row, col)`` marked), as in the thesis' Fig. 22.
+
+Run it with ``maniskill-pnp eval-clutter runs/clutter/<run folder> --episodes 10``.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import math
+import statistics
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from maniskill_pnp.agents.clutter_recipe import ClutterConfig, load_checkpoint, make_env, make_model
+from maniskill_pnp.agents.pixel_fcn import rotation_angles
+from maniskill_pnp.agents.pixel_policy import GreedyPixelActor
+from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
+from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+
+#: Longest run of consecutive failed grasps a completed episode may contain (VPG's completion criterion).
+MAX_FAILURE_RUN = 10
+#: Names of the metrics, in table order (DESIGN.md, "Metrics").
+METRICS = ("success_rate", "grasp_success", "completion", "action_efficiency")
+#: Columns of the per-episode table.
+EPISODE_COLUMNS = ("seed", "objects", "actions", "grasps", "placed", "lost", "cleared", "max_failure_run",
+                   "success_rate", "grasp_success")
+
+
+@dataclass(frozen=True)
+class ClutterEvalConfig:
+    """Settings of one greedy evaluation of a clutter DQN checkpoint."""
+
+    checkpoint: Path
+    """checkpoint.pt of a clutter DQN run (train-clutter), or the run folder that holds it."""
+    episodes: int = 10
+    """Seeded scenes to evaluate (episode i uses seed + i)."""
+    num_objects: int | None = None
+    """Objects per scene; None: the checkpoint's training value."""
+    seed: int = 1000
+    """Seed of the first scene; the default keeps the test scenes apart from the small seeds used in training."""
+    max_steps: int | None = None
+    """Cap on grasp attempts per episode (an episode cut by it is not completed); None: only the task's own limits."""
+    out: Path = Path("runs/clutter_eval")
+    """Folder for eval_summary.json, eval_table.md/.csv and q_heatmaps.png."""
+    device: str = "auto"
+    """Torch device of the Q network ("auto": CUDA when available, else CPU); the simulation stays on the CPU."""
+
+    def __post_init__(self):
+        object.__setattr__(self, "checkpoint", Path(self.checkpoint))
+        object.__setattr__(self, "out", Path(self.out))
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.num_objects is not None and self.num_objects < 1:
+            raise ValueError(f"num_objects must be >= 1 (or None for the checkpoint's value), got {self.num_objects}")
+        if self.max_steps is not None and self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1 (or None for no cap), got {self.max_steps}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.device != "auto":
+            try:
+                torch.device(self.device)
+            except RuntimeError as e:
+                raise ValueError(f"device must be 'auto' or a torch device such as 'cpu' or 'cuda:0', got {self.device!r}") from e
+
+    @property
+    def checkpoint_path(self) -> Path:
+        """The checkpoint file (``checkpoint.pt`` inside ``checkpoint`` when that is a folder)."""
+        return self.checkpoint / "checkpoint.pt" if self.checkpoint.is_dir() else self.checkpoint
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d.update(checkpoint=str(self.checkpoint), out=str(self.out))
+        return d
+
+
+# ----------------------------------------------------------------------------- model
+def load_policy(path: Path, device: torch.device) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
+    """The greedy actor of a checkpoint (network in eval mode on ``device``), its training config and counters.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        ValueError: ``path`` is not a readable clutter DQN checkpoint, or its weights do not fit its config.
+    """
+    payload = load_checkpoint(path)
+    try:
+        train_cfg = ClutterConfig.from_json(payload["config"])
+        state = payload["model"]
+    except (KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"checkpoint {path} has no usable config or model: {e}") from e
+    # The checkpoint's weights replace any initialisation: do not read a pretrained file that may be gone by now.
+    train_cfg = dataclasses.replace(train_cfg, pretrained_path=None)
+    model = make_model(train_cfg)
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as e:
+        raise ValueError(f"checkpoint {path}: the weights do not fit the network of its config: {e}") from e
+    model.to(device).eval()
+    return GreedyPixelActor(model), train_cfg, dict(payload.get("counters", {}))
+
+
+def _resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+# ----------------------------------------------------------------------------- metrics
+def summarize(episodes: list[dict]) -> dict:
+    """The DESIGN.md metrics (see the module docstring) of per-episode records from :func:`run_episode`."""
+    attempts = sum(e["actions"] for e in episodes)
+    completed = [e for e in episodes if e["cleared"] and e["max_failure_run"] <= MAX_FAILURE_RUN]
+    completed_actions = sum(e["actions"] for e in completed)
+    return dict(
+        success_rate=statistics.mean(e["placed"] / e["actions"] for e in episodes),
+        grasp_success=sum(e["grasps"] for e in episodes) / attempts,
+        completion=len(completed) / len(episodes),
+        action_efficiency=sum(e["objects"] for e in completed) / completed_actions if completed_actions else 0.0,
+    )
+
+
+# ----------------------------------------------------------------------------- episodes
+@torch.inference_mode()
+def decide(actor: GreedyPixelActor, obs: dict, device: torch.device) -> tuple[int, torch.Tensor]:
+    """Greedy flat action index and the Q maps ``(P, R, H, W)`` (on the CPU) of one env observation."""
+    color, depth = obs["color_heightmap"].to(device), obs["depth_heightmap"].to(device)
+    values, action = actor(color, depth)
+    net = actor.q_network
+    maps = values.reshape(len(net.primitives), net.num_rotations, *depth.shape[-2:])
+    return int(action.reshape(-1)[0]), maps.float().cpu()
+
+
+def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, max_steps: int | None,
+                on_step=None) -> tuple[dict, dict]:
+    """One greedy episode of the gymnasium env ``env`` from ``reset(seed=seed)``.
+
+    Args:
+        on_step: Called with the step's ``info`` after every grasp (the progress bar's hook).
+
+    Returns:
+        The episode record (``EPISODE_COLUMNS``) and the first decision: ``{"color", "depth", "maps", "action"}``.
+    """
+    obs, info = env.reset(seed=seed)
+    objects = int(info["num_objects"])
+    first = None
+    actions = grasps = placed = run = max_run = 0
+    done = False
+    while not done and (max_steps is None or actions < max_steps):
+        action, maps = decide(actor, obs, device)
+        if first is None:
+            first = dict(color=obs["color_heightmap"][0].cpu().numpy(), depth=obs["depth_heightmap"][0].cpu().numpy(),
+                         maps=maps.numpy(), action=action)
+        obs, _, terminated, truncated, info = env.step(action)
+        actions += 1
+        grasps += int(info["grasp_success"])
+        placed += int(info["place_success"])
+        run = 0 if info["grasp_success"] else run + 1
+        max_run = max(max_run, run)
+        done = bool(terminated.item() or truncated.item())
+        if on_step is not None:
+            on_step(info)
+    record = dict(
+        seed=seed, objects=objects, actions=actions, grasps=grasps, placed=placed, lost=int(info["lost_objects"]),
+        cleared=bool(info["success"].item()), max_failure_run=max_run,
+        success_rate=placed / actions, grasp_success=grasps / actions,
+    )
+    return record, first
+
+
+# ----------------------------------------------------------------------------- outputs
+def plot_q_heatmaps(first: dict, primitives: tuple[str, ...], path: Path) -> Path:
+    """Colour and depth heightmaps, then the Q map of every (primitive, rotation) on one colour scale; the chosen
+    ``(rotation, row, col)`` is marked on its map and on the heightmaps. Written as PNG (matplotlib's Agg backend)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    maps = first["maps"]
+    P, R, H, W = maps.shape
+    p, r, row, col = PixelActionLayout(P, R, H, W).decode(first["action"])
+    degrees = np.degrees(rotation_angles(R).numpy())
+    panels = 2 + P * R
+    ncols = min(panels, 6)
+    nrows = math.ceil(panels / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(2.6 * ncols, 2.6 * nrows + 0.6), squeeze=False)
+    axes = axes.ravel()
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    axes[0].imshow(first["color"])
+    axes[0].set_title("colour heightmap")
+    depth_img = axes[1].imshow(first["depth"], cmap="viridis")
+    axes[1].set_title("depth heightmap (m)")
+    fig.colorbar(depth_img, ax=axes[1], fraction=0.046, pad=0.04)
+    marker = dict(marker="x", color="red", markersize=10, markeredgewidth=2)
+    for ax in axes[:2]:
+        ax.plot(col, row, **marker)
+    vmin, vmax = float(maps.min()), float(maps.max())
+    map_axes = []
+    for i in range(P):
+        for j in range(R):
+            ax = axes[2 + i * R + j]
+            img = ax.imshow(maps[i, j], cmap="jet", vmin=vmin, vmax=vmax)
+            name = f"{primitives[i]} " if P > 1 else ""
+            chosen = (i, j) == (p, r)
+            ax.set_title(f"{name}{degrees[j]:g}°" + (" (chosen)" if chosen else ""), fontweight="bold" if chosen else None)
+            if chosen:
+                ax.plot(col, row, **marker)
+            map_axes.append(ax)
+    for ax in axes[panels:]:
+        ax.set_visible(False)
+    fig.colorbar(img, ax=map_axes, fraction=0.02, pad=0.02, label="Q value")
+    fig.suptitle(f"Q maps of the first state; chosen {primitives[p]} at rotation {degrees[r]:g}°, row {row}, col {col} (x)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _fmt(v) -> str:
+    return f"{v:.3f}" if isinstance(v, float) else str(v)
+
+
+def write_tables(episodes: list[dict], metrics: dict, out: Path) -> tuple[Path, Path]:
+    """``eval_table.md`` (metrics, then one row per episode) and ``eval_table.csv`` (episodes and an ``all`` row)."""
+    totals = {k: sum(e[k] for e in episodes) for k in ("objects", "actions", "grasps", "placed", "lost")}
+    all_row = dict(seed="all", **totals, cleared=sum(e["cleared"] for e in episodes),
+                   max_failure_run=max(e["max_failure_run"] for e in episodes),
+                   success_rate=metrics["success_rate"], grasp_success=metrics["grasp_success"])
+    rows = [[_fmt(e[c]) for c in EPISODE_COLUMNS] for e in [*episodes, all_row]]
+    md = ["| metric | value |", "|---|---|", *(f"| {k} | {metrics[k]:.1%} |" for k in METRICS), "",
+          "| " + " | ".join(EPISODE_COLUMNS) + " |", "|" + "|".join("---" for _ in EPISODE_COLUMNS) + "|",
+          *("| " + " | ".join(r) + " |" for r in rows)]
+    md_path, csv_path = out / "eval_table.md", out / "eval_table.csv"
+    atomic_write_bytes(md_path, lambda f: f.write(("\n".join(md) + "\n").encode()))
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(EPISODE_COLUMNS)
+    writer.writerows(rows)
+    atomic_write_bytes(csv_path, lambda f: f.write(buf.getvalue().encode()))
+    return md_path, csv_path
+
+
+# ----------------------------------------------------------------------------- main
+def run(cfg: ClutterEvalConfig) -> dict:
+    """Evaluate the checkpoint greedily; write the JSON summary, the tables and the Q-map figure into ``cfg.out``.
+
+    Returns:
+        The summary written to ``eval_summary.json``: ``metrics``, ``episodes`` (per-episode records), ``files``,
+        the configs, ``wall_s``.
+
+    Raises:
+        FileNotFoundError: the checkpoint does not exist.
+        ValueError: the checkpoint is unreadable or not a clutter DQN checkpoint.
+    """
+    device = _resolve_device(cfg.device)
+    # 1. load the policy (a bad file fails before the env is made)
+    ckpt = cfg.checkpoint_path
+    actor, train_cfg, counters = load_policy(ckpt, device)
+    primitives = actor.q_network.primitives
+
+    # 2. make the env with the checkpoint's heightmap, rotations and (unless overridden) object count
+    env_cfg = train_cfg if cfg.num_objects is None else dataclasses.replace(train_cfg, num_objects=cfg.num_objects)
+    torchrl_env = make_env(env_cfg)
+    env = torchrl_env.maniskill_env  # the gymnasium env underneath: its per-step info holds the grasp outcome
+
+    # 3. greedy episodes
+    t0 = time.perf_counter()
+    episodes, first = [], None
+    outcomes = []
+    with tqdm(total=cfg.episodes, desc=f"eval {train_cfg.run_name}", unit="episode") as bar:
+
+        def on_step(info):
+            outcomes.append(bool(info["grasp_success"]))
+            bar.set_postfix(grasp=f"{sum(outcomes) / len(outcomes):.2f}", attempts=len(outcomes))
+
+        try:
+            for i in range(cfg.episodes):
+                record, decision = run_episode(env, actor, cfg.seed + i, device, cfg.max_steps, on_step)
+                episodes.append(record)
+                if first is None:
+                    first = decision
+                bar.update()
+        finally:
+            torchrl_env.close()
+    wall = time.perf_counter() - t0
+
+    # 4. metrics, tables, figure and JSON
+    metrics = summarize(episodes)
+    out = cfg.out
+    out.mkdir(parents=True, exist_ok=True)
+    md_path, csv_path = write_tables(episodes, metrics, out)
+    png_path = plot_q_heatmaps(first, primitives, out / "q_heatmaps.png")
+    json_path = out / "eval_summary.json"
+    summary = dict(
+        checkpoint=str(ckpt), metrics=metrics, episodes=episodes, wall_s=wall, device=str(device),
+        eval_config=cfg.to_json(), train_config=train_cfg.to_json(), train_counters=counters,
+        files=dict(summary=str(json_path), table_md=str(md_path), table_csv=str(csv_path), q_heatmaps=str(png_path)),
+    )
+    write_json(json_path, summary)
+    return summary
+
+
+__all__ = ["ClutterEvalConfig", "MAX_FAILURE_RUN", "METRICS", "load_policy", "plot_q_heatmaps", "run",
+           "run_episode", "summarize", "write_tables"]
