@@ -132,13 +132,13 @@ def _train_clutter(args) -> None:
 def _eval_clutter(args) -> None:
     import dataclasses
 
-    from maniskill_pnp.agents.clutter_eval import METRICS, ClutterEvalConfig, run
+    from maniskill_pnp.agents.clutter_eval import ClutterEvalConfig, run
 
     try:
         summary = run(ClutterEvalConfig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(ClutterEvalConfig)}))
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"eval-clutter: {e}") from e
-    print(json.dumps({k: summary["metrics"][k] for k in METRICS}, indent=2))
+    print(json.dumps(summary["metrics"], indent=2))
     print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
 
 
@@ -156,7 +156,13 @@ def _add_clutter_eval_args(parser: argparse.ArgumentParser) -> None:
         if f.name == "checkpoint":
             continue
         help_text = docs[f.name].replace("%", "%%") + " (default: %(default)s)"
-        parser.add_argument("--" + f.name.replace("_", "-"), type=types.get(f.name, int), default=f.default, help=help_text)
+        flag = "--" + f.name.replace("_", "-")
+        if f.name == "scenarios":
+            parser.add_argument(flag, nargs="+", default=list(f.default), help=help_text)
+        elif isinstance(f.default, bool):
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default, help=help_text)
+        else:
+            parser.add_argument(flag, type=types.get(f.name, int), default=f.default, help=help_text)
 
 
 def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:

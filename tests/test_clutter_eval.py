@@ -27,19 +27,21 @@ def test_eval_writes_metrics_tables_and_q_map_figure(tiny_run, tmp_path):
     out = tmp_path / "eval"
     summary = run(ClutterEvalConfig(checkpoint=tiny_run, episodes=1, max_steps=2, out=out))
 
-    for name in ("eval_summary.json", "eval_table.md", "eval_table.csv", "q_heatmaps.png"):
+    for name in ("eval_summary.json", "eval_table.md", "eval_table.csv", "eval_episodes.csv", "q_heatmaps.png"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     report = json.loads((out / "eval_summary.json").read_text())
-    assert set(METRICS) <= set(report["metrics"])
+    assert set(METRICS) <= set(report["metrics"]["train"])
     for key in METRICS:
-        assert 0.0 <= report["metrics"][key] <= 1.0, key
+        assert 0.0 <= report["metrics"]["train"][key] <= 1.0, key
     (episode,) = report["episodes"]
     assert episode["seed"] == 1000 and 1 <= episode["actions"] <= 2 and episode["objects"] == 2
+    assert episode["grasp_attempts"] == episode["actions"]  # a grasp-only agent
     assert report["train_config"]["num_rotations"] == 2
     assert summary["metrics"] == report["metrics"]
 
     csv_lines = (out / "eval_table.csv").read_text().splitlines()
-    assert csv_lines[0].startswith("seed,") and csv_lines[-1].startswith("all,") and len(csv_lines) == 3
+    assert csv_lines[0] == "scenario,episodes," + ",".join(METRICS) and csv_lines[1].startswith("train,1,")
+    assert len(csv_lines) == 2
 
     image = matplotlib.image.imread(out / "q_heatmaps.png")
     assert image.ndim == 3 and image.shape[0] > 100 and image.shape[1] > 300 and image.shape[2] in (3, 4)
@@ -61,8 +63,27 @@ def test_missing_or_corrupt_checkpoint_is_a_clear_error(tmp_path):
 
 
 @pytest.mark.parametrize("option", [dict(episodes=0), dict(max_steps=0), dict(num_objects=0), dict(seed=-1),
-                                    dict(device="gpu7")])
+                                    dict(device="gpu7"), dict(scenarios=("crowded",)), dict(scenarios=())])
 def test_bad_options_name_the_option(option, tmp_path):
     name = next(iter(option))
     with pytest.raises(ValueError, match=name):
         ClutterEvalConfig(checkpoint=tmp_path, **option)
+
+
+def test_grasp_slide_table_ix_over_scenarios_and_grasp_only(tmp_path):
+    """A tiny G&S run evaluated on two scenarios (Table IX rows), then restricted to its grasps."""
+    cfg = ClutterConfig.from_preset("gs-cpu-small", heightmap_size=32, num_rotations=2, num_objects=3, steps=2,
+                                    checkpoint_interval=2, log_interval=1, out=tmp_path)
+    train(cfg)
+    both = run(ClutterEvalConfig(checkpoint=cfg.run_dir, episodes=1, max_steps=2, scenarios=("2", "complicated"),
+                                 out=tmp_path / "gs"))
+    assert list(both["metrics"]) == ["2", "complicated"]
+    rows = (tmp_path / "gs" / "eval_table.md").read_text().splitlines()
+    assert rows[0].startswith("| scenario | episodes | success_rate") and len(rows) == 4
+    assert [e["scenario"] for e in both["episodes"]] == ["2", "complicated"]
+    assert 3 <= both["episodes"][1]["objects"] <= 7  # a hand-designed locking layout
+
+    grasps = run(ClutterEvalConfig(checkpoint=cfg.run_dir, episodes=1, max_steps=2, scenarios=("2",), grasp_only=True,
+                                   out=tmp_path / "grasp_only"))
+    (episode,) = grasps["episodes"]
+    assert episode["grasp_attempts"] == episode["actions"]

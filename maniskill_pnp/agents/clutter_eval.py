@@ -1,26 +1,33 @@
-"""Greedy evaluation of a ClutterGrasp-v1 pixelwise DQN checkpoint (thesis part II), with the DESIGN.md metrics.
+"""Greedy evaluation of a clutter DQN checkpoint (thesis parts II and III), with the DESIGN.md metrics per scenario.
 
 The network of a ``checkpoint.pt`` written by :func:`~maniskill_pnp.agents.clutter_recipe.save_checkpoint` is rebuilt
 from the checkpoint's own config and run greedily (argmax of the Q maps, no ε) over seeded scenes: episode ``i`` is
 reset with seed ``seed + i``. The default seed 1000 keeps the test scenes apart from the small seeds training uses.
-An episode ends when the workspace is clear, when the task truncates it (too many consecutive failed grasps or
-actions) or after ``max_steps`` grasp attempts.
+An episode ends when the workspace is clear, when the task truncates it (too many consecutive failures or
+actions) or after ``max_steps`` actions. The policy acts under the action mask its training used (grasps only where
+there is material, see :mod:`~maniskill_pnp.agents.pixel_mask`); ``grasp_only`` also masks out a G&S agent's
+slides, the thesis' grasp-only comparison on the same network.
+
+Scenarios (``scenarios``, one table row each, like the thesis' Table IX): ``"train"`` (the checkpoint's object
+count), an object count such as ``"10"``, a density preset of the task (``"min"``, ``"medium"``, ``"max"``) or
+``"complicated"`` (ClutterGraspSlide-v1's hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset).
 
 Metrics (DESIGN.md names, computed from the env's ``info`` of every step):
 
 * ``success_rate`` (thesis): objects placed in the bin / actions, per episode, averaged over episodes.
 * ``grasp_success``: successful grasps / grasp attempts, over all episodes.
-* ``completion`` (VPG): episodes cleared with no run of more than :data:`MAX_FAILURE_RUN` consecutive failed grasps
-  / episodes.
+* ``completion`` (VPG): episodes cleared with no run of more than :data:`MAX_FAILURE_RUN` consecutive failures
+  (failed grasps, slides that changed nothing) / episodes.
 * ``action_efficiency`` (VPG): objects / actions, summed over the completed episodes (0 when none completed, as in
   :mod:`maniskill_pnp.bench.clutter_oracle`).
 
-Files written into ``out``: ``eval_summary.json`` (metrics, per-episode records, both configs), ``eval_table.md``
-and ``eval_table.csv`` (one row per episode and an ``all`` row), and ``q_heatmaps.png``: the colour and depth
-heightmaps of the first state of the first episode beside the Q map of every rotation (one colour scale; the chosen
-``(rotation, row, col)`` marked), as in the thesis' Fig. 22.
+Files written into ``out``: ``eval_summary.json`` (metrics per scenario, per-episode records, both configs),
+``eval_table.md`` and ``eval_table.csv`` (one row per scenario: the metrics), ``eval_episodes.csv`` (one row per
+episode), and ``q_heatmaps.png``: the colour and depth heightmaps of the first state of the first episode beside the
+Q map of every primitive and rotation (one colour scale; the chosen action marked), as in the thesis' Fig. 22.
 
-Run it with ``maniskill-pnp eval-clutter runs/clutter/<run folder> --episodes 10``.
+Run it with ``maniskill-pnp eval-clutter runs/clutter/<run folder> --episodes 10`` (G&S, Table IX:
+``--scenarios min medium max complicated``).
 """
 
 from __future__ import annotations
@@ -38,7 +45,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from maniskill_pnp.agents.clutter_recipe import ClutterConfig, load_checkpoint, make_env, make_model
+from maniskill_pnp.agents.clutter_recipe import ClutterConfig, load_checkpoint, make_action_mask, make_env, make_model
 from maniskill_pnp.agents.pixel_fcn import rotation_angles
 from maniskill_pnp.agents.pixel_policy import GreedyPixelActor
 from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
@@ -48,9 +55,13 @@ from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 MAX_FAILURE_RUN = 10
 #: Names of the metrics, in table order (DESIGN.md, "Metrics").
 METRICS = ("success_rate", "grasp_success", "completion", "action_efficiency")
+#: Scenario names besides an object count (see the module docstring).
+SCENARIOS = ("train", "min", "medium", "max", "complicated")
 #: Columns of the per-episode table.
-EPISODE_COLUMNS = ("seed", "objects", "actions", "grasps", "placed", "lost", "cleared", "max_failure_run",
-                   "success_rate", "grasp_success")
+EPISODE_COLUMNS = ("scenario", "seed", "objects", "actions", "grasp_attempts", "grasps", "placed", "lost", "cleared",
+                   "max_failure_run", "success_rate", "grasp_success")
+#: Columns of the per-scenario table (Table IX).
+SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS)
 
 
 @dataclass(frozen=True)
@@ -66,7 +77,11 @@ class ClutterEvalConfig:
     seed: int = 1000
     """Seed of the first scene; the default keeps the test scenes apart from the small seeds used in training."""
     max_steps: int | None = None
-    """Cap on grasp attempts per episode (an episode cut by it is not completed); None: only the task's own limits."""
+    """Cap on actions per episode (an episode cut by it is not completed); None: only the task's own limits."""
+    scenarios: tuple[str, ...] = ("train",)
+    """Scenes to evaluate, one table row each: "train", an object count, "min", "medium", "max" or "complicated"."""
+    grasp_only: bool = False
+    """Mask out every primitive but grasps (a G&S agent evaluated as a grasp-only agent)."""
     out: Path = Path("runs/clutter_eval")
     """Folder for eval_summary.json, eval_table.md/.csv and q_heatmaps.png."""
     device: str = "auto"
@@ -75,6 +90,12 @@ class ClutterEvalConfig:
     def __post_init__(self):
         object.__setattr__(self, "checkpoint", Path(self.checkpoint))
         object.__setattr__(self, "out", Path(self.out))
+        object.__setattr__(self, "scenarios", tuple(str(x) for x in self.scenarios))
+        if not self.scenarios:
+            raise ValueError("scenarios must name at least one scenario (e.g. 'train' or 'medium')")
+        bad = [x for x in self.scenarios if not (x in SCENARIOS or (x.isdigit() and int(x) > 0))]
+        if bad:
+            raise ValueError(f"unknown scenarios {bad}; valid: a positive object count or one of {list(SCENARIOS)}")
         if self.episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
         if self.num_objects is not None and self.num_objects < 1:
@@ -101,8 +122,9 @@ class ClutterEvalConfig:
 
 
 # ----------------------------------------------------------------------------- model
-def load_policy(path: Path, device: torch.device) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
-    """The greedy actor of a checkpoint (network in eval mode on ``device``), its training config and counters.
+def load_policy(path: Path, device: torch.device, grasp_only: bool = False) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
+    """The greedy actor of a checkpoint (network in eval mode on ``device``, the training's action mask, and with
+    ``grasp_only`` only the grasp primitive enabled), its training config and counters.
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
@@ -122,7 +144,19 @@ def load_policy(path: Path, device: torch.device) -> tuple[GreedyPixelActor, Clu
     except RuntimeError as e:
         raise ValueError(f"checkpoint {path}: the weights do not fit the network of its config: {e}") from e
     model.to(device).eval()
-    return GreedyPixelActor(model), train_cfg, dict(payload.get("counters", {}))
+    mask = make_action_mask(train_cfg, enabled=("grasp",) if grasp_only else None)
+    return GreedyPixelActor(model, mask), train_cfg, dict(payload.get("counters", {}))
+
+
+def scenario_options(name: str, task: str) -> dict:
+    """Task keyword arguments of a scenario (see the module docstring)."""
+    if name == "train":
+        return {}
+    if name.isdigit():
+        return dict(num_objects=int(name))
+    if name == "complicated" and task == "grasp_slide":
+        return dict(layout="complicated")
+    return dict(num_objects=name)
 
 
 def _resolve_device(name: str) -> torch.device:
@@ -134,12 +168,12 @@ def _resolve_device(name: str) -> torch.device:
 # ----------------------------------------------------------------------------- metrics
 def summarize(episodes: list[dict]) -> dict:
     """The DESIGN.md metrics (see the module docstring) of per-episode records from :func:`run_episode`."""
-    attempts = sum(e["actions"] for e in episodes)
+    attempts = sum(e["grasp_attempts"] for e in episodes)
     completed = [e for e in episodes if e["cleared"] and e["max_failure_run"] <= MAX_FAILURE_RUN]
     completed_actions = sum(e["actions"] for e in completed)
     return dict(
         success_rate=statistics.mean(e["placed"] / e["actions"] for e in episodes),
-        grasp_success=sum(e["grasps"] for e in episodes) / attempts,
+        grasp_success=sum(e["grasps"] for e in episodes) / attempts if attempts else 0.0,
         completion=len(completed) / len(episodes),
         action_efficiency=sum(e["objects"] for e in completed) / completed_actions if completed_actions else 0.0,
     )
@@ -150,14 +184,14 @@ def summarize(episodes: list[dict]) -> dict:
 def decide(actor: GreedyPixelActor, obs: dict, device: torch.device) -> tuple[int, torch.Tensor]:
     """Greedy flat action index and the Q maps ``(P, R, H, W)`` (on the CPU) of one env observation."""
     color, depth = obs["color_heightmap"].to(device), obs["depth_heightmap"].to(device)
-    values, action = actor(color, depth)
+    values, action = actor(color, depth)[:2]
     net = actor.q_network
     maps = values.reshape(len(net.primitives), net.num_rotations, *depth.shape[-2:])
     return int(action.reshape(-1)[0]), maps.float().cpu()
 
 
 def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, max_steps: int | None,
-                on_step=None) -> tuple[dict, dict]:
+                on_step=None, scenario: str = "train") -> tuple[dict, dict]:
     """One greedy episode of the gymnasium env ``env`` from ``reset(seed=seed)``.
 
     Args:
@@ -169,7 +203,7 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
     obs, info = env.reset(seed=seed)
     objects = int(info["num_objects"])
     first = None
-    actions = grasps = placed = run = max_run = 0
+    actions = attempts = grasps = placed = max_run = 0
     done = False
     while not done and (max_steps is None or actions < max_steps):
         action, maps = decide(actor, obs, device)
@@ -178,17 +212,17 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
                          maps=maps.numpy(), action=action)
         obs, _, terminated, truncated, info = env.step(action)
         actions += 1
+        attempts += int(action // maps[0].numel() == 0)  # primitive 0 is the grasp
         grasps += int(info["grasp_success"])
         placed += int(info["place_success"])
-        run = 0 if info["grasp_success"] else run + 1
-        max_run = max(max_run, run)
+        max_run = max(max_run, int(info["consecutive_failures"]))
         done = bool(terminated.item() or truncated.item())
         if on_step is not None:
             on_step(info)
     record = dict(
-        seed=seed, objects=objects, actions=actions, grasps=grasps, placed=placed, lost=int(info["lost_objects"]),
-        cleared=bool(info["success"].item()), max_failure_run=max_run,
-        success_rate=placed / actions, grasp_success=grasps / actions,
+        scenario=scenario, seed=seed, objects=objects, actions=actions, grasp_attempts=attempts, grasps=grasps,
+        placed=placed, lost=int(info["lost_objects"]), cleared=bool(info["success"].item()), max_failure_run=max_run,
+        success_rate=placed / actions, grasp_success=grasps / attempts if attempts else 0.0,
     )
     return record, first
 
@@ -248,85 +282,90 @@ def _fmt(v) -> str:
     return f"{v:.3f}" if isinstance(v, float) else str(v)
 
 
-def write_tables(episodes: list[dict], metrics: dict, out: Path) -> tuple[Path, Path]:
-    """``eval_table.md`` (metrics, then one row per episode) and ``eval_table.csv`` (episodes and an ``all`` row)."""
-    totals = {k: sum(e[k] for e in episodes) for k in ("objects", "actions", "grasps", "placed", "lost")}
-    all_row = dict(seed="all", **totals, cleared=sum(e["cleared"] for e in episodes),
-                   max_failure_run=max(e["max_failure_run"] for e in episodes),
-                   success_rate=metrics["success_rate"], grasp_success=metrics["grasp_success"])
-    rows = [[_fmt(e[c]) for c in EPISODE_COLUMNS] for e in [*episodes, all_row]]
-    md = ["| metric | value |", "|---|---|", *(f"| {k} | {metrics[k]:.1%} |" for k in METRICS), "",
-          "| " + " | ".join(EPISODE_COLUMNS) + " |", "|" + "|".join("---" for _ in EPISODE_COLUMNS) + "|",
-          *("| " + " | ".join(r) + " |" for r in rows)]
-    md_path, csv_path = out / "eval_table.md", out / "eval_table.csv"
-    atomic_write_bytes(md_path, lambda f: f.write(("\n".join(md) + "\n").encode()))
+def _write_csv(path: Path, columns, rows) -> None:
     buf = io.StringIO()
     writer = csv.writer(buf)
-    writer.writerow(EPISODE_COLUMNS)
-    writer.writerows(rows)
-    atomic_write_bytes(csv_path, lambda f: f.write(buf.getvalue().encode()))
-    return md_path, csv_path
+    writer.writerow(columns)
+    writer.writerows([[_fmt(r[c]) for c in columns] for r in rows])
+    atomic_write_bytes(path, lambda f: f.write(buf.getvalue().encode()))
+
+
+def write_tables(rows: list[dict], episodes: list[dict], out: Path) -> tuple[Path, Path, Path]:
+    """``eval_table.md`` / ``eval_table.csv`` (one row per scenario: :data:`SCENARIO_COLUMNS`, metrics in %) and
+    ``eval_episodes.csv`` (one row per episode: :data:`EPISODE_COLUMNS`)."""
+    md = ["| " + " | ".join(SCENARIO_COLUMNS) + " |", "|" + "|".join("---" for _ in SCENARIO_COLUMNS) + "|"]
+    md += ["| " + " | ".join([r["scenario"], str(r["episodes"]), *(f"{r[k]:.1%}" for k in METRICS)]) + " |" for r in rows]
+    md_path, csv_path, ep_path = out / "eval_table.md", out / "eval_table.csv", out / "eval_episodes.csv"
+    atomic_write_bytes(md_path, lambda f: f.write(("\n".join(md) + "\n").encode()))
+    _write_csv(csv_path, SCENARIO_COLUMNS, rows)
+    _write_csv(ep_path, EPISODE_COLUMNS, episodes)
+    return md_path, csv_path, ep_path
 
 
 # ----------------------------------------------------------------------------- main
 def run(cfg: ClutterEvalConfig) -> dict:
-    """Evaluate the checkpoint greedily; write the JSON summary, the tables and the Q-map figure into ``cfg.out``.
+    """Evaluate the checkpoint greedily on every scenario; write the JSON summary, the tables and the Q-map figure
+    into ``cfg.out``.
 
     Returns:
-        The summary written to ``eval_summary.json``: ``metrics``, ``episodes`` (per-episode records), ``files``,
-        the configs, ``wall_s``.
+        The summary written to ``eval_summary.json``: ``metrics`` (per scenario), ``episodes`` (per-episode
+        records), ``files``, the configs, ``wall_s``.
 
     Raises:
         FileNotFoundError: the checkpoint does not exist.
-        ValueError: the checkpoint is unreadable or not a clutter DQN checkpoint.
+        ValueError: the checkpoint is unreadable or not a clutter DQN checkpoint, or a scenario does not fit its task.
     """
     device = _resolve_device(cfg.device)
-    # 1. load the policy (a bad file fails before the env is made)
+    # 1. load the policy (a bad file fails before any env is made)
     ckpt = cfg.checkpoint_path
-    actor, train_cfg, counters = load_policy(ckpt, device)
+    actor, train_cfg, counters = load_policy(ckpt, device, grasp_only=cfg.grasp_only)
     primitives = actor.q_network.primitives
-
-    # 2. make the env with the checkpoint's heightmap, rotations and (unless overridden) object count
     env_cfg = train_cfg if cfg.num_objects is None else dataclasses.replace(train_cfg, num_objects=cfg.num_objects)
-    torchrl_env = make_env(env_cfg)
-    env = torchrl_env.maniskill_env  # the gymnasium env underneath: its per-step info holds the grasp outcome
 
-    # 3. greedy episodes
+    # 2. greedy episodes, scenario by scenario (episode i of every scenario from seed + i)
     t0 = time.perf_counter()
-    episodes, first = [], None
+    episodes, rows, first = [], [], None
     outcomes = []
-    with tqdm(total=cfg.episodes, desc=f"eval {train_cfg.run_name}", unit="episode") as bar:
+    with tqdm(total=cfg.episodes * len(cfg.scenarios), desc=f"eval {train_cfg.run_name}", unit="episode") as bar:
 
         def on_step(info):
-            outcomes.append(bool(info["grasp_success"]))
-            bar.set_postfix(grasp=f"{sum(outcomes) / len(outcomes):.2f}", attempts=len(outcomes))
+            if info.get("primitive", "grasp") == "grasp":
+                outcomes.append(bool(info["grasp_success"]))
+            bar.set_postfix(grasp=f"{sum(outcomes) / max(1, len(outcomes)):.2f}", attempts=len(outcomes))
 
-        try:
-            for i in range(cfg.episodes):
-                record, decision = run_episode(env, actor, cfg.seed + i, device, cfg.max_steps, on_step)
-                episodes.append(record)
-                if first is None:
-                    first = decision
-                bar.update()
-        finally:
-            torchrl_env.close()
+        for scenario in cfg.scenarios:
+            bar.set_description(f"eval {scenario}")
+            torchrl_env = make_env(env_cfg, **scenario_options(scenario, train_cfg.task))
+            env = torchrl_env.maniskill_env  # the gymnasium env underneath: its per-step info holds the outcome
+            try:
+                scenario_episodes = []
+                for i in range(cfg.episodes):
+                    record, decision = run_episode(env, actor, cfg.seed + i, device, cfg.max_steps, on_step, scenario)
+                    scenario_episodes.append(record)
+                    first = first or decision
+                    bar.update()
+            finally:
+                torchrl_env.close()
+            episodes += scenario_episodes
+            rows.append(dict(scenario=scenario, episodes=len(scenario_episodes), **summarize(scenario_episodes)))
     wall = time.perf_counter() - t0
 
-    # 4. metrics, tables, figure and JSON
-    metrics = summarize(episodes)
+    # 3. tables, figure and JSON
     out = cfg.out
     out.mkdir(parents=True, exist_ok=True)
-    md_path, csv_path = write_tables(episodes, metrics, out)
+    md_path, csv_path, ep_path = write_tables(rows, episodes, out)
     png_path = plot_q_heatmaps(first, primitives, out / "q_heatmaps.png")
     json_path = out / "eval_summary.json"
+    metrics = {r["scenario"]: {k: r[k] for k in METRICS} for r in rows}
     summary = dict(
         checkpoint=str(ckpt), metrics=metrics, episodes=episodes, wall_s=wall, device=str(device),
         eval_config=cfg.to_json(), train_config=train_cfg.to_json(), train_counters=counters,
-        files=dict(summary=str(json_path), table_md=str(md_path), table_csv=str(csv_path), q_heatmaps=str(png_path)),
+        files=dict(summary=str(json_path), table_md=str(md_path), table_csv=str(csv_path), episodes_csv=str(ep_path),
+                   q_heatmaps=str(png_path)),
     )
     write_json(json_path, summary)
     return summary
 
 
-__all__ = ["ClutterEvalConfig", "MAX_FAILURE_RUN", "METRICS", "load_policy", "plot_q_heatmaps", "run",
-           "run_episode", "summarize", "write_tables"]
+__all__ = ["ClutterEvalConfig", "MAX_FAILURE_RUN", "METRICS", "SCENARIOS", "load_policy", "plot_q_heatmaps", "run",
+           "run_episode", "scenario_options", "summarize", "write_tables"]
