@@ -142,6 +142,20 @@ def _eval_clutter(args) -> None:
     print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
 
 
+def _plot_clutter(args) -> None:
+    from maniskill_pnp.agents.clutter_curves import plot_training_curves
+
+    labels = args.labels or [r.name for r in args.runs]
+    if len(labels) != len(args.runs):
+        raise SystemExit(f"plot-clutter: {len(labels)} labels for {len(args.runs)} runs")
+    try:
+        summary = plot_training_curves(dict(zip(labels, args.runs)), args.out, window=args.window)
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"plot-clutter: {e}") from e
+    print(json.dumps(summary, indent=2))
+    print(f"curves: {args.out}")
+
+
 def _add_clutter_eval_args(parser: argparse.ArgumentParser) -> None:
     """The checkpoint argument and one option per other ClutterEvalConfig field; help = field docstring."""
     import dataclasses
@@ -251,7 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_conveyor_train_args(train)
     train.set_defaults(func=_train_conveyor)
 
-    clutter = sub.add_parser("train-clutter", help="train pixelwise DQN grasping on ClutterGrasp-v1 (thesis part II)")
+    clutter = sub.add_parser("train-clutter", help="train a pixelwise DQN agent: grasping on ClutterGrasp-v1 (thesis part II, "
+                             "presets cpu-small, thesis) or G&S on ClutterGraspSlide-v1 (part III, presets gs-*)")
     _add_clutter_train_args(clutter)
     clutter.set_defaults(func=_train_clutter)
 
@@ -266,9 +281,18 @@ def build_parser() -> argparse.ArgumentParser:
                     help="run folders whose CSV logs to plot as learning curves (default: the checkpoints' run folders)")
     ev.set_defaults(func=_eval_conveyor)
 
-    evc = sub.add_parser("eval-clutter", help="greedy evaluation of a ClutterGrasp-v1 DQN checkpoint: DESIGN.md metrics, tables, Q-map figure")
+    evc = sub.add_parser("eval-clutter", help="greedy evaluation of a clutter DQN checkpoint per scenario: DESIGN.md metrics, "
+                         "Table IX (Markdown, CSV), Q-map figure")
     _add_clutter_eval_args(evc)
     evc.set_defaults(func=_eval_clutter)
+
+    plot = sub.add_parser("plot-clutter", help="training curves (grasp success, success rate) of clutter runs in one PNG, "
+                          "with first / last window numbers")
+    plot.add_argument("runs", nargs="+", type=Path, help="run folders of train-clutter (each holds actions.csv)")
+    plot.add_argument("--labels", nargs="+", help="legend label per run (default: the run folder names)")
+    plot.add_argument("--window", type=int, default=50, help="trailing window in actions (default: %(default)s)")
+    plot.add_argument("--out", type=Path, default=Path("runs/clutter_curves.png"), help="PNG to write (default: %(default)s)")
+    plot.set_defaults(func=_plot_clutter)
     return parser
 
 
