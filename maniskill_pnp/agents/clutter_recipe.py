@@ -56,6 +56,7 @@ TASKS = {
     "grasp_slide": dict(env_id="ClutterGraspSlide-v1", primitives=("grasp", "left_slide", "right_slide")),
 }
 LOSSES = ("dqn", "bce")
+OPTIMIZERS = ("sgd", "adam")
 #: Fields that fix the network's shape or the task: a resumed run must keep them.
 ARCHITECTURE_FIELDS = (
     "task", "loss", "backbone", "use_depth", "head_channels", "num_rotations", "heightmap_size", "workspace_side",
@@ -105,6 +106,8 @@ class ClutterConfig(RunConfig):
     """SGD updates between two hard target-network syncs (used with ``delay_value``)."""
     double_dqn: bool = False
     """Double DQN bootstrap (needs ``delay_value``)."""
+    optimizer: str = "sgd"
+    """"sgd" (thesis: momentum, weight decay) or "adam" (momentum is unused)."""
     lr: float = 1e-2
     """SGD learning rate."""
     momentum: float = 0.9
@@ -154,6 +157,8 @@ class ClutterConfig(RunConfig):
             raise ValueError(f"unknown preset {self.preset!r}; valid: {list(PRESETS)}")
         if self.task not in TASKS:
             raise ValueError(f"unknown task {self.task!r}; valid: {list(TASKS)}")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"unknown optimizer {self.optimizer!r}; valid: {list(OPTIMIZERS)}")
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; valid: {list(LOSSES)}")
         if self.task == "grasp" and self.reward_scheme != "default":
@@ -451,7 +456,10 @@ def main(cfg: ClutterConfig) -> dict:
         loss, loss_key = PixelDQNLoss(model, gamma=cfg.gamma, delay_value=cfg.delay_value, double_dqn=cfg.double_dqn,
                                       action_mask=None if mask is None else mask.from_observation), "loss_qvalue"
     updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval) if cfg.delay_value else None
-    optimizer = torch.optim.SGD(loss.parameters(), lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
+    if cfg.optimizer == "adam":
+        optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    else:
+        optimizer = torch.optim.SGD(loss.parameters(), lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
 
     if payload is not None:
         model.load_state_dict(payload["model"])
