@@ -123,8 +123,11 @@ def _train_clutter(args) -> None:
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(ClutterConfig)
                  if f.name != "preset" and getattr(args, f.name, None) is not None}
     try:
-        cfg = ClutterConfig.from_preset(args.preset, **overrides)
-    except ValueError as e:
+        values = ClutterConfig.values_from_file(args.config) if args.config else {}
+        preset = args.preset or values.pop("preset", "cpu-small")
+        values.pop("preset", None)
+        cfg = ClutterConfig.from_preset(preset, **{**values, **overrides})
+    except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"train-clutter: {e}") from e
     print(json.dumps(main(cfg), indent=2))
 
@@ -183,12 +186,16 @@ def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:
     """``--preset`` and one option per ClutterConfig field (default: the preset's value); help = field docstring."""
     import dataclasses
 
-    from maniskill_pnp.agents.clutter_recipe import PRESETS, ClutterConfig
+    from maniskill_pnp.agents.clutter_recipe import LOSSES, OPTIMIZERS, PRESETS, TASKS, ClutterConfig
     from maniskill_pnp.agents.run_io import field_docs
     from maniskill_pnp.agents.pixel_fcn import BACKBONES
 
     docs = field_docs(ClutterConfig)
-    parser.add_argument("--preset", choices=list(PRESETS), default="cpu-small", help=docs["preset"] + " (default: %(default)s)")
+    parser.add_argument("--preset", choices=list(PRESETS), default=None,
+                        help=docs["preset"] + " (default: the config file's, else cpu-small)")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="YAML or JSON file of config fields (e.g. a run's config.json); the preset's values, then "
+                        "the file's, then the options given here")
     for f in dataclasses.fields(ClutterConfig):
         if f.name == "preset":
             continue
@@ -201,7 +208,8 @@ def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:
         elif f.name == "pretrained_path":
             parser.add_argument(flag, type=str, default=None, help=help_text)
         else:
-            choices = sorted(BACKBONES) if f.name == "backbone" else None
+            choices = dict(backbone=sorted(BACKBONES), task=list(TASKS), loss=list(LOSSES), optimizer=list(OPTIMIZERS),
+                           reward_scheme=["default", "no_slide_reward"]).get(f.name)
             parser.add_argument(flag, type=type(f.default), choices=choices, default=None, help=help_text)
 
 

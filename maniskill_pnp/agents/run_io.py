@@ -11,6 +11,8 @@ import json
 import os
 import tempfile
 import textwrap
+import types
+import typing
 from pathlib import Path
 
 from torchrl.record.loggers import Logger
@@ -40,12 +42,74 @@ class RunConfig:
 
     @classmethod
     def from_json(cls, d: dict):
-        """The config from :meth:`to_json`'s dict; ValueError naming any unknown field."""
+        """The config from :meth:`to_json`'s dict; ValueError naming any unknown or mistyped field."""
+        cls._check_values(d)
+        return cls(**d)
+
+    @classmethod
+    def _check_values(cls, d) -> None:
+        if not isinstance(d, dict):
+            raise ValueError(f"a {cls.__name__} must be a mapping of field names to values, got {type(d).__name__}")
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:
             raise ValueError(f"unknown config fields {unknown}; known: {sorted(known)}")
-        return cls(**d)
+        hints = typing.get_type_hints(cls)
+        for name, value in d.items():
+            if not _fits(value, hints[name]):
+                raise ValueError(f"config field {name!r} must be {_type_name(hints[name])}, got {value!r}")
+
+    @classmethod
+    def values_from_file(cls, path: str | os.PathLike) -> dict:
+        """The field values of a YAML or JSON config file, checked against the fields (names and types) but not yet
+        a config; ValueError naming the file and the problem (parse error, unknown or mistyped field)."""
+        import yaml
+
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"config file {path} does not exist")
+        try:
+            d = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as e:
+            raise ValueError(f"config file {path} is not valid YAML/JSON: {e}") from e
+        try:
+            cls._check_values(d)
+        except ValueError as e:
+            raise ValueError(f"config file {path}: {e}") from e
+        return d
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike, **overrides):
+        """The config from a YAML or JSON file (missing fields keep their defaults), with ``overrides`` applied."""
+        d = cls.values_from_file(path)
+        try:
+            return cls.from_json({**d, **overrides})
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"config file {path}: {e}") from e
+
+
+def _fits(value, hint) -> bool:
+    """Whether a JSON/YAML value can stand for a field annotated ``hint`` (ints for floats, strings for paths)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_fits(value, a) for a in args)
+    if hint is type(None):
+        return value is None
+    if origin is tuple:
+        return isinstance(value, (list, tuple)) and all(_fits(v, args[0]) for v in value)
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint is Path:
+        return isinstance(value, (str, Path))
+    return isinstance(value, hint) if isinstance(hint, type) else True
+
+
+def _type_name(hint) -> str:
+    return getattr(hint, "__name__", None) or str(hint).replace("typing.", "")
 
 
 def field_docs(cls) -> dict[str, str]:
