@@ -115,3 +115,26 @@ def test_consecutive_failures_truncate_through_gym_make(env):
     (term1, trunc1), (term2, trunc2) = flags
     assert not trunc1.item() and not term1.item()
     assert trunc2.item() and not term2.item()
+
+
+def test_faults_are_detected_and_truncate(env):
+    """A blown-up object and an object resting on the gripper are named by detect_fault; step truncates on them."""
+    import sapien
+
+    base = env.unwrapped
+    env.reset(seed=2)
+    assert base.detect_fault() == ""
+    fast = base._active_actors[0]
+    fast.set_linear_velocity(torch.tensor([[50.0, 0.0, 0.0]]))
+    assert base.detect_fault().startswith(f"physics blow-up: {base.active[0]}")
+
+    env.reset(seed=2)
+    finger = base.agent.finger1_link.pose.p[0].numpy()
+    base._active_actors[1].set_pose(sapien.Pose(p=finger))
+    for _ in range(2):
+        base.scene.step()
+    assert base.detect_fault() == f"{base.active[1]} rests on the gripper (panda_leftfinger) at the home pose"
+    obs, reward, terminated, truncated, info = env.step(0)  # any action: the episode cannot go on
+    assert truncated.item() and info["fault"] and reward.item() == 0.0
+    env.reset(seed=2)
+    assert base.detect_fault() == "" and env.unwrapped.last["fault"] == ""

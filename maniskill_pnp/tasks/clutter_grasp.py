@@ -85,6 +85,10 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     RELEASE_STEPS = 20
     #: Primitive names, in the order of the action's primitive index.
     PRIMITIVES = ("grasp",)
+    #: Speed (m/s) above which an object counts as blown up by the physics (nothing in the task moves this fast).
+    MAX_OBJECT_SPEED = 5.0
+    #: Contact force (N) between an object and the gripper at home above which the object rests on the gripper.
+    GRIPPER_CONTACT_FORCE = 1e-3
 
     def __init__(
         self,
@@ -223,7 +227,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.consecutive_failures = 0
         self.num_grasps = 0
         self.num_placed = 0
-        self.last = dict(grasp_success=False, place_success=False, stage="reset", reason="", action=-1)
+        self.last = dict(grasp_success=False, place_success=False, stage="reset", reason="", action=-1, fault="")
         self._episode_ready = True
         if self.prims is not None:
             self.prims.reset()
@@ -256,12 +260,14 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.num_placed += int(outcome["place_success"])
         self.consecutive_failures = 0 if success else self.consecutive_failures + 1
         outcome["planning_time"] += home.planning_time
-        self.last = dict(outcome, home_ok=bool(home.ok), action=index, pixel=(rot, row, col), time_motion=t_motion)
+        self.last = dict(outcome, home_ok=bool(home.ok), action=index, pixel=(rot, row, col), time_motion=t_motion,
+                         fault=self.detect_fault())
         info = self.get_info()
         info["time_render"], info["time_heightmap"] = self._t_render, self._t_heightmap
         terminated = torch.tensor([info["objects_remaining"] == 0], device=self.device)
         truncated = torch.tensor(
-            [not terminated.item() and (self.consecutive_failures >= self.max_consecutive_failures or self.num_actions >= self.max_actions)],
+            [not terminated.item() and (self.consecutive_failures >= self.max_consecutive_failures or self.num_actions >= self.max_actions
+                                        or bool(self.last["fault"]))],
             device=self.device,
         )
         self._last_obs = obs
@@ -344,6 +350,27 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < n:
             raise ValueError(f"layout_index must be an int in 0..{n - 1}, got {k!r}")
         return int(k)
+
+    def detect_fault(self) -> str:
+        """Why the episode cannot go on ("" when it can), checked after every action with the arm at home:
+
+        * a physics blow-up: an object with a non-finite pose or velocity, or faster than :attr:`MAX_OBJECT_SPEED`;
+        * an object resting on the gripper (in contact with a finger or the hand at the home pose), which would
+          make every later plan start in collision.
+
+        ``step`` puts the reason in ``info["fault"]`` and truncates the episode; objects thrown out of the workspace
+        are counted in ``info["lost_objects"]`` as usual.
+        """
+        for name, actor in zip(self.active, self._active_actors):
+            p, v = actor.pose.p[0], actor.linear_velocity[0]
+            if not (torch.isfinite(p).all() and torch.isfinite(v).all()) or float(v.norm()) > self.MAX_OBJECT_SPEED:
+                return f"physics blow-up: {name} at {p.tolist()} moving at {float(v.norm()):.3g} m/s"
+        links = (self.agent.finger1_link, self.agent.finger2_link, self.agent.robot.links_map["panda_hand"])
+        for name, actor in zip(self.active, self._active_actors):
+            for link in links:
+                if float(self.scene.get_pairwise_contact_forces(link, actor).norm()) > self.GRIPPER_CONTACT_FORCE:
+                    return f"{name} rests on the gripper ({link.name}) at the home pose"
+        return ""
 
     # ------------------------------------------------------------------ observation, evaluation, reward
     def _in_workspace(self) -> list[str]:
