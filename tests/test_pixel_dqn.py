@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from torch import nn
 import torch
 from tensordict import TensorDict
 from torchrl.objectives import HardUpdate
@@ -351,3 +352,19 @@ def test_executed_values_equal_the_full_maps_and_give_the_same_gradient():
         torch.testing.assert_close(grads[0][k], grads[1][k], rtol=1e-4, atol=1e-6)
     with pytest.raises(ValueError, match="out of range"):
         net.executed_values(x, torch.tensor([0, 1, 2, layout.size]))
+
+
+@pytest.mark.parametrize("backbone, cell, pixel", [("small", 3, 24), ("densenet121", 2, 78), ("resnet101", 1, 32)])
+def test_upsampling_puts_each_feature_on_its_receptive_field_centre(backbone, cell, pixel):
+    """Feature ``i`` of a trunk is centred on input pixel ``offset + stride * i``; the upsampled map peaks there."""
+    net = PixelQNetwork.__new__(PixelQNetwork)  # only the geometry of the backbone is needed
+    nn.Module.__init__(net)
+    from maniskill_pnp.agents.pixel_fcn import BACKBONES
+
+    net.stride, net.offset = BACKBONES[backbone].stride, BACKBONES[backbone].offset
+    grid = torch.zeros(1, 1, 6, 6)
+    grid[0, 0, cell, cell + 1] = 1.0
+    up = net.upsample(grid, 6 * net.stride)[0, 0]
+    assert up.shape == (6 * net.stride, 6 * net.stride)
+    assert divmod(int(up.argmax()), up.shape[1]) == (pixel, pixel + net.stride)
+    assert up[pixel, pixel + net.stride] == pytest.approx(1.0, abs=1e-5)

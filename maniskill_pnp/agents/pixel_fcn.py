@@ -9,7 +9,8 @@ one Q map per rotation, ``(B, R, H, W)``. Its structure follows the thesis (and 
 * two trunks, one on the colour image and one on the height channel cloned to 3 channels (``use_depth=False``
   keeps the colour trunk only); their feature maps are concatenated;
 * a head of two 1x1 convolutions, each preceded by BatchNorm + ReLU, the last giving one channel;
-* bilinear upsampling to the padded resolution, rotation back, and a centre crop to ``H x W``.
+* bilinear upsampling to the padded resolution, aligned so each pixel reads the features centred on it
+  (:meth:`PixelQNetwork.upsample`), rotation back, and a centre crop to ``H x W``.
 
 Rotation ``r`` is the one of :class:`~maniskill_pnp.tasks.workspace.WorkspaceSpec`: jaws closing along
 ``yaw = r * 2*pi / R`` from world x, where the heightmap's col axis is world x and its row axis world y.
@@ -54,6 +55,9 @@ class _Backbone:
     truncate: Callable[[nn.Module], nn.Module]
     channels: int
     stride: int
+    #: Input pixel at the centre of feature 0's receptive field: feature ``i`` is centred on ``offset + stride * i``
+    #: (ResNets: strided convolutions centre on ``stride * i``; DenseNet's 2x2 average-pool transitions add 14 px).
+    offset: float
 
 
 def _resnet_trunk(last_layer: str) -> Callable[[nn.Module], nn.Module]:
@@ -71,18 +75,21 @@ BACKBONES: dict[str, _Backbone] = {
         truncate=lambda m: m.features,
         channels=1024,
         stride=32,
+        offset=14.0,
     ),
     "resnet101": _Backbone(
         build=lambda: torchvision.models.resnet101(weights=None),
         truncate=_resnet_trunk("layer4"),
         channels=2048,
         stride=32,
+        offset=0.0,
     ),
     "small": _Backbone(
         build=lambda: torchvision.models.resnet18(weights=None),
         truncate=_resnet_trunk("layer2"),
         channels=128,
         stride=8,
+        offset=0.0,
     ),
 }
 
@@ -191,6 +198,7 @@ class PixelQNetwork(nn.Module):
         self.backbone = backbone
         self.use_depth = use_depth
         self.stride = spec.stride
+        self.offset = spec.offset
         self.depth_mean = float(depth_mean)
         self.depth_std = float(depth_std)
         self.color_trunk = make_trunk(backbone, pretrained_path)
@@ -223,10 +231,24 @@ class PixelQNetwork(nn.Module):
         S = padded_size(H, W, self.stride)
         top, left = (S - H) // 2, (S - W) // 2
         x = rotate_images(F.pad(x, (left, S - W - left, top, S - H - top)), angles)
-        q = self.head(self._features(x))
-        q = F.interpolate(q, size=(S, S), mode="bilinear", align_corners=False)
+        q = self.upsample(self.head(self._features(x)), S)
         q = rotate_images(q, -angles)
         return q[:, 0, top : top + H, left : left + W]
+
+    def upsample(self, q: torch.Tensor, size: int) -> torch.Tensor:
+        """Bilinear upsampling of feature-grid maps ``(N, C, h, w)`` to ``(N, C, size, size)`` pixels, aligned so
+        that pixel ``j`` reads the features at grid coordinate ``(j - offset) / stride``: each pixel's value comes
+        from the features whose receptive fields are centred on it (a plain ``interpolate`` would shift the maps by
+        up to half a stride, 3.5 px for the small trunk and 15.5 px for ResNet-101)."""
+        h, w = q.shape[-2:]
+        u = (torch.arange(size, device=q.device, dtype=q.dtype) - self.offset) / self.stride
+
+        def normalized(n: int) -> torch.Tensor:  # grid_sample coordinates with align_corners=True
+            return 2.0 * u / (n - 1) - 1.0 if n > 1 else torch.zeros_like(u)
+
+        gy, gx = torch.meshgrid(normalized(h), normalized(w), indexing="ij")
+        grid = torch.stack([gx, gy], dim=-1).expand(q.shape[0], size, size, 2)
+        return F.grid_sample(q, grid, mode="bilinear", padding_mode="border", align_corners=True)
 
     @staticmethod
     def _check(heightmaps: torch.Tensor) -> None:
