@@ -127,9 +127,10 @@ def _train_clutter(args) -> None:
         preset = args.preset or values.pop("preset", "cpu-small")
         values.pop("preset", None)
         cfg = ClutterConfig.from_preset(preset, **{**values, **overrides})
+        summary = main(cfg)
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"train-clutter: {e}") from e
-    print(json.dumps(main(cfg), indent=2))
+    print(json.dumps(summary, indent=2))
 
 
 def _eval_clutter(args) -> None:

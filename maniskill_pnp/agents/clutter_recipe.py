@@ -402,7 +402,8 @@ def load_checkpoint(path: Path) -> dict:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises several types for truncated / foreign files
-        raise ValueError(f"checkpoint {path} is unreadable (truncated or not a torch.save file): {e}") from e
+        first_line = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise ValueError(f"checkpoint {path} is unreadable (truncated or not a torch.save file): {first_line}") from e
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"checkpoint {path} is not a clutter DQN checkpoint (expected format {CHECKPOINT_FORMAT!r})")
     return payload
