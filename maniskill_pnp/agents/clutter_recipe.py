@@ -75,7 +75,8 @@ class ClutterConfig(RunConfig):
     task: str = "grasp"
     """"grasp": one grasp FCN on ClutterGrasp-v1; "grasp_slide": the G&S agent (3 FCNs) on ClutterGraspSlide-v1."""
     loss: str = "dqn"
-    """"dqn": Huber loss to r + gamma max Q(s'); "bce": the binary-classification baseline (no bootstrapping)."""
+    """"dqn": Huber loss to r + gamma max Q(s'); "bce": the binary-classification baseline (no bootstrapping, so it
+    turns delay_value and double_dqn off)."""
     reward_scheme: str = "default"
     """Reward scheme of ClutterGraspSlide-v1 ("default" or "no_slide_reward"); must be "default" for task grasp."""
     backbone: str = "small"
@@ -512,7 +513,7 @@ def main(cfg: ClutterConfig) -> dict:
         finished = tracker.add(transitions.get("action"), rewards, transitions.get(("next", "done")),
                                transitions.get(("next", "terminated")))
         counters["steps"] += n
-        counters["grasps"] = counters.get("grasps", 0) + tracker.last_grasps
+        counters["grasps"] += tracker.last_grasps
         counters["episodes"] += len(finished)
         for episode in finished:
             logger.log_scalar("episode/success_rate", episode["success_rate"], step=counters["episodes"])
