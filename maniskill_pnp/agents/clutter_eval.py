@@ -212,7 +212,7 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
                          maps=maps.numpy(), action=action)
         obs, _, terminated, truncated, info = env.step(action)
         actions += 1
-        attempts += int(action // maps[0].numel() == 0)  # primitive 0 is the grasp
+        attempts += int(env.unwrapped.action_layout.decode(action)[0] == 0)  # primitive 0 is the grasp
         grasps += int(info["grasp_success"])
         placed += int(info["place_success"])
         max_run = max(max_run, int(info["consecutive_failures"]))
