@@ -16,3 +16,10 @@ def default_backends(num_envs: int = 1) -> dict[str, str]:
         "sim_backend": "physx_cuda" if cuda and num_envs > 1 else "physx_cpu",
         "render_backend": "sapien_cuda" if cuda else "cpu",
     }
+
+
+def resolve_device(name: str) -> torch.device:
+    """A torch device from a name; ``"auto"`` is CUDA when available, else the CPU."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)

@@ -121,6 +121,19 @@ def test_slide_through_empty_space_is_a_failure(two_cubes):
     assert not info["slide_changed"] and reward == 0.0 and info["consecutive_failures"] == 1
 
 
+def test_slide_that_knocks_an_object_out_of_the_workspace_is_a_failure():
+    """Left of rotation 0 is +y: a cube 2.5 cm inside the +y edge, pushed from 4 cm behind it, leaves the workspace."""
+    edge = (CX, CY + WS.side / 2 - 0.025, 0.02)
+    e = gym.make("ClutterGraspSlide-v1", workspace=WS, layout=[(CUBE, edge)], **CPU)
+    try:
+        e.reset(seed=0)
+        reward, info = act(e, "left_slide", 0, np.asarray(edge) - [0.0, 0.04, 0.0])
+        assert info["knocked_out"] == 1 and info["lost_objects"] == 1, info
+        assert reward == 0.0 and info["consecutive_failures"] == 1 and "out of the workspace" in info["reason"]
+    finally:
+        e.close()
+
+
 def test_reward_schemes_differ_only_in_the_slide_reward():
     assert {k: v for k, v in REWARD_SCHEMES["default"].items() if k != "slide"} == {
         k: v for k, v in REWARD_SCHEMES["no_slide_reward"].items() if k != "slide"

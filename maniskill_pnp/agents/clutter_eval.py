@@ -49,6 +49,7 @@ from maniskill_pnp.agents.clutter_recipe import ClutterConfig, load_checkpoint, 
 from maniskill_pnp.agents.pixel_fcn import rotation_angles
 from maniskill_pnp.agents.pixel_policy import GreedyPixelActor
 from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
+from maniskill_pnp.runtime import resolve_device
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 
 #: Longest run of consecutive failed grasps a completed episode may contain (VPG's completion criterion).
@@ -158,11 +159,6 @@ def scenario_options(name: str, task: str) -> dict:
         return dict(layout="complicated")
     return dict(num_objects=name)
 
-
-def _resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 # ----------------------------------------------------------------------------- metrics
@@ -315,7 +311,7 @@ def run(cfg: ClutterEvalConfig) -> dict:
         FileNotFoundError: the checkpoint does not exist.
         ValueError: the checkpoint is unreadable or not a clutter DQN checkpoint, or a scenario does not fit its task.
     """
-    device = _resolve_device(cfg.device)
+    device = resolve_device(cfg.device)
     # 1. load the policy (a bad file fails before any env is made)
     ckpt = cfg.checkpoint_path
     actor, train_cfg, counters = load_policy(ckpt, device, grasp_only=cfg.grasp_only)

@@ -50,6 +50,7 @@ import torch
 import torch.nn.functional as F
 
 from maniskill_pnp.bench.common import machine_info, write_report
+from maniskill_pnp.runtime import resolve_device
 
 #: Primitive names of the grasp & slide network, in action-index order; a benchmark with ``n`` primitives uses the first n.
 PRIMITIVES = ("grasp", "left_slide", "right_slide")
@@ -59,11 +60,6 @@ DECISION_COST_TARGET = 1.3
 TOP_OPS = 8
 _GIB = 1024**3
 
-
-def _resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 def _sync(device: torch.device) -> None:
@@ -197,7 +193,7 @@ def measure_training_step(settings: dict, memory_efficient: bool) -> dict:
 
     from maniskill_pnp.agents.pixel_policy import heightmap_input
 
-    device = _resolve_device(settings["device"])
+    device = resolve_device(settings["device"])
     if settings["threads"] is not None:
         torch.set_num_threads(settings["threads"])
     torch.manual_seed(0)
@@ -445,7 +441,7 @@ def measure_decision(cfg: DecisionCostBenchConfig, num_primitives: int) -> dict:
     """Times of one decision and of its bare trunk passes (s), their ratio, and where the difference goes."""
     from maniskill_pnp.agents.pixel_policy import GreedyPixelActor
 
-    device = _resolve_device(cfg.device)
+    device = resolve_device(cfg.device)
     torch.manual_seed(0)
     model = _build(cfg.backbone, cfg.num_rotations, num_primitives).to(device).eval()
     actor = GreedyPixelActor(model)

@@ -236,7 +236,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     def _primitives(self) -> MotionPrimitives:
         if self.prims is None:
             arm = replace(panda_spec(), home=self.home_qpos.copy())
-            self.prims = MotionPrimitives(self, arm=arm, static_actors={"table-workspace", "ground", "bin"}, seed=self.planner_seed)
+            self.prims = MotionPrimitives(self, arm=arm, static_actors={"table-workspace", "ground", "bin"}, seed=self.planner_seed,
+                                          on_control_step=self._on_control_step)
         return self.prims
 
     def step(self, action):

@@ -13,6 +13,8 @@ A slide succeeds when it changed the scene: VPG's heightmap test, more than :dat
 :data:`CHANGE_MIN_DELTA` and less than :data:`CHANGE_MAX_DELTA` metres. For another heightmap size the pixel count
 scales with the heightmap's pixel count, so the same share of the heightmap must change (with the default 0.448 m
 workspace, the same area of table: about 24.5 pixels of a 64×64 heightmap); see :func:`heightmap_changed`.
+A slide that knocks an object out of the workspace is a failure whatever it changed (reward 0; ``info["knocked_out"]``
+counts the objects, ``info["reason"]`` says so): otherwise clearing the table by pushing would pay.
 """
 
 from __future__ import annotations
@@ -67,7 +69,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
     fingertips 8 cm from the pixel's 3-D point to the left or right of the rotation's jaw direction, to pull
     apart objects that no grasp fits. Observations as ClutterGrasp-v1's.
     Reward (``reward_scheme="default"``): 1 placed in the bin, 0.8 grasped but not placed, 0.5 a slide that
-    changed the heightmap, 0 otherwise; ``"no_slide_reward"`` gives slides 0.
+    changed the heightmap without knocking an object out of the workspace, 0 otherwise; ``"no_slide_reward"`` gives
+    slides 0.
 
     **Randomizations:**
     - random clutters as ClutterGrasp-v1's: ``num_objects`` (10 by default; presets ``"min"`` 6–10,
@@ -80,8 +83,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
     **Success Conditions:**
     - the workspace is clear (episode terminates); it is truncated after ``max_consecutive_failures`` failures
       in a row (a grasp that held nothing or a slide that changed nothing) or ``max_actions`` actions.
-      ``info`` is ClutterGrasp-v1's plus ``primitive`` (name), ``primitive_index``, ``slide_changed`` and
-      ``changed_pixels``.
+      ``info`` is ClutterGrasp-v1's plus ``primitive`` (name), ``primitive_index``, ``slide_changed``,
+      ``changed_pixels`` and ``knocked_out`` (objects the slide pushed out of the workspace).
     """
 
     PRIMITIVES = ("grasp", "left_slide", "right_slide")
@@ -135,10 +138,11 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
     # ------------------------------------------------------------------ episode and step
     def _initialize_episode(self, env_idx, options):
         super()._initialize_episode(env_idx, options)
-        self.last.update(primitive="", primitive_index=-1, slide_changed=False, changed_pixels=0)
+        self.last.update(primitive="", primitive_index=-1, slide_changed=False, changed_pixels=0, knocked_out=0)
 
     def _execute(self, primitive, rot, row, col):
         name = self.PRIMITIVES[primitive]
+        self._lost_before = self._status().count("lost")
         out = self._grasp_at(rot, row, col) if name == "grasp" else self._slide_at(name.removesuffix("_slide"), rot, row, col)
         return dict(out, primitive=name, primitive_index=primitive)
 
@@ -156,9 +160,13 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
 
     def _judge(self, outcome, height_before, height_after):
         if outcome["primitive"] == "grasp":
-            outcome.update(slide_changed=False, changed_pixels=0)
+            outcome.update(slide_changed=False, changed_pixels=0, knocked_out=0)
             return super()._judge(outcome, height_before, height_after)
         n = changed_pixels(height_before, height_after)
         changed = n > change_threshold(*height_before.shape)
-        outcome.update(slide_changed=changed, changed_pixels=n)
+        knocked_out = self._status().count("lost") - self._lost_before
+        outcome.update(slide_changed=changed, changed_pixels=n, knocked_out=knocked_out)
+        if knocked_out > 0:  # pushing objects off the workspace is no progress: no reward, and it counts as a failure
+            outcome["reason"] = f"the slide knocked {knocked_out} object(s) out of the workspace"
+            return 0.0, False
         return (self.rewards["slide"] if changed else 0.0), changed

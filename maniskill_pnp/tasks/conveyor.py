@@ -301,7 +301,8 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
             raise RuntimeError("the episode is over (one object per episode); call reset()")
         a = self._check_action(action)
         if self.prims is None:
-            self.prims = MotionPrimitives(self, static_actors={"table-workspace", "ground", "bin", "belt"}, seed=self.planner_seed)
+            self.prims = MotionPrimitives(self, static_actors={"table-workspace", "ground", "bin", "belt"}, seed=self.planner_seed,
+                                          on_control_step=self._on_control_step)
         steps0 = self.prims.executor.sim_steps
         reward = 0.0
         if self.phase == "initial":

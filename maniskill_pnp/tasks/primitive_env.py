@@ -86,6 +86,20 @@ class PrimitiveStepEnv(BaseEnv):
             raise ValueError(f"{name} needs control_mode='pd_joint_pos', got {kwargs['control_mode']!r}")
         super().__init__(*args, **kwargs)
 
+    _control_step_callback = None
+
+    def set_control_step_callback(self, callback) -> None:
+        """Call ``callback()`` after every control step the primitives execute (e.g. to film the arm's motion);
+        ``None`` removes it. Takes effect at once, also in the middle of an episode."""
+        if callback is not None and not callable(callback):
+            raise ValueError(f"callback must be callable or None, got {type(callback).__name__}")
+        self._control_step_callback = callback
+
+    def _on_control_step(self) -> None:
+        """The hook the task's :class:`~maniskill_pnp.planning.MotionPrimitives` call after every control step."""
+        if self._control_step_callback is not None:
+            self._control_step_callback()
+
     def _use_discrete_actions(self, n: int) -> None:
         """Replace the agent's low-level action space by ``Discrete(n)``; call after ``super().__init__``."""
         self.single_action_space = spaces.Discrete(n)

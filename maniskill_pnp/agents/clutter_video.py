@@ -1,0 +1,262 @@
+"""Film a clutter DQN agent: one greedy episode as an MP4 of the arm's motion, and a strip of its decisions.
+
+Every frame of ``episode.mp4`` shows the scene from the task's render camera (the arm moving through each
+primitive, one frame every ``frame_every`` control steps) beside the decision being executed: the colour
+heightmap with the chosen action drawn on it, and the Q map of the chosen primitive and rotation. ``decisions.png``
+has one row per decision: colour heightmap, depth heightmap, the Q map of the chosen primitive and rotation, the
+action drawn on the heightmap and its outcome. Grasps are drawn as the jaw line (the fingers close along it),
+slides as an arrow of the slide's length.
+
+Run it with ``maniskill-pnp record-clutter runs/clutter/<run folder>`` (``--scenario complicated`` for a locking
+layout of ClutterGraspSlide-v1).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from maniskill_pnp.agents.clutter_eval import SCENARIOS, decide, load_policy, scenario_options
+from maniskill_pnp.runtime import resolve_device
+from maniskill_pnp.agents.clutter_recipe import make_env
+from maniskill_pnp.agents.run_io import write_json
+
+#: Side (px) of each heightmap / Q-map panel in the video and the strip.
+PANEL = 256
+#: Span (m) of the Panda's open jaws, the length of a grasp's jaw line.
+JAW_SPAN = 0.08
+#: Colours (RGB) of the action drawn per primitive.
+ACTION_COLOURS = {"grasp": (255, 40, 40), "left_slide": (40, 220, 255), "right_slide": (255, 200, 0)}
+
+
+@dataclass(frozen=True)
+class ClutterVideoConfig:
+    """Settings of one filmed greedy episode of a clutter DQN checkpoint."""
+
+    checkpoint: Path
+    """checkpoint.pt of a clutter DQN run (train-clutter), or the run folder that holds it."""
+    scenario: str = "train"
+    """Scene: "train" (the checkpoint's object count), an object count, "min", "medium", "max" or "complicated"."""
+    seed: int = 1000
+    """Seed of the scene."""
+    max_steps: int = 10
+    """Cap on the decisions filmed (the episode may end earlier: cleared, or truncated by the task)."""
+    grasp_only: bool = False
+    """Mask out every primitive but grasps (a G&S agent filmed as a grasp-only agent)."""
+    frame_every: int = 3
+    """Keep one video frame every this many control steps (20 Hz control)."""
+    fps: int = 20
+    """Frame rate of the MP4."""
+    out: Path = Path("runs/clutter_video")
+    """Folder for episode.mp4, decisions.png and video_summary.json."""
+    device: str = "auto"
+    """Torch device of the Q network ("auto": CUDA when available, else CPU)."""
+
+    def __post_init__(self):
+        object.__setattr__(self, "checkpoint", Path(self.checkpoint))
+        object.__setattr__(self, "out", Path(self.out))
+        object.__setattr__(self, "scenario", str(self.scenario))
+        if not (self.scenario in SCENARIOS or (self.scenario.isdigit() and int(self.scenario) > 0)):
+            raise ValueError(f"unknown scenario {self.scenario!r}; valid: a positive object count or one of {list(SCENARIOS)}")
+        for name in ("max_steps", "frame_every", "fps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.checkpoint / "checkpoint.pt" if self.checkpoint.is_dir() else self.checkpoint
+
+
+# ----------------------------------------------------------------------------- drawing
+def _resize(img: np.ndarray, size: int = PANEL) -> np.ndarray:
+    import cv2
+
+    return cv2.resize(img, (size, size), interpolation=cv2.INTER_NEAREST)
+
+
+def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "jet") -> np.ndarray:
+    """A 2-D array as an RGB uint8 image through a matplotlib colour map over ``[vmin, vmax]``."""
+    from matplotlib import colormaps
+
+    scaled = (values - vmin) / (vmax - vmin) if vmax > vmin else np.zeros_like(values)
+    return (colormaps[cmap](np.clip(scaled, 0.0, 1.0))[..., :3] * 255).astype(np.uint8)
+
+
+def draw_action(img: np.ndarray, decision: dict, heightmap_size: int) -> np.ndarray:
+    """``img`` (a panel of the heightmap, any size) with the decision's action drawn: the grasp's jaw line or the
+    slide's arrow (``decision["direction"]``: unit (x, y) of the jaws or of the push; pixel col follows x, row y)."""
+    import cv2
+
+    out = np.ascontiguousarray(img.copy())
+    scale = out.shape[0] / heightmap_size
+    centre = np.array([decision["col"] + 0.5, decision["row"] + 0.5]) * scale
+    d = np.asarray(decision["direction"]) * decision["length_px"] * scale
+    colour = ACTION_COLOURS.get(decision["primitive"], (255, 255, 255))
+    if decision["primitive"] == "grasp":
+        a, b = centre - d / 2, centre + d / 2
+        cv2.line(out, tuple(int(v) for v in a), tuple(int(v) for v in b), colour, 2, cv2.LINE_AA)
+        cv2.circle(out, tuple(int(v) for v in centre), 4, colour, -1, cv2.LINE_AA)
+    else:
+        cv2.arrowedLine(out, tuple(int(v) for v in centre), tuple(int(v) for v in centre + d), colour, 2, cv2.LINE_AA, tipLength=0.25)
+    return out
+
+
+def label(img: np.ndarray, text: str) -> np.ndarray:
+    """``img`` with ``text`` on a dark band at the top."""
+    import cv2
+
+    out = np.ascontiguousarray(img.copy())
+    cv2.rectangle(out, (0, 0), (out.shape[1], 20), (0, 0, 0), -1)
+    cv2.putText(out, text, (4, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+    return out
+
+
+def decision_panels(decision: dict, heightmap_size: int) -> list[np.ndarray]:
+    """Colour heightmap, depth heightmap, Q map of the chosen primitive and rotation, and the action on the heightmap."""
+    depth = decision["depth"]
+    qmap = decision["qmap"]
+    action_text = f"{decision['primitive']} {decision['degrees']:g}deg r{decision['row']} c{decision['col']}"
+    return [
+        label(_resize(decision["color"]), f"decision {decision['index']}: colour"),
+        label(_resize(colorize(depth, 0.0, max(float(depth.max()), 1e-3), "viridis")), "depth"),
+        label(draw_action(_resize(colorize(qmap, float(qmap.min()), float(qmap.max()))), decision, heightmap_size),
+              f"Q {qmap.min():.2f}..{qmap.max():.2f}"),
+        label(draw_action(_resize(decision["color"]), decision, heightmap_size), action_text),
+    ]
+
+
+def decisions_strip(decisions: list[dict], heightmap_size: int, path: Path) -> Path:
+    """One row per decision (:func:`decision_panels`) plus its outcome, written as a PNG."""
+    import imageio.v3 as iio
+
+    rows = []
+    for d in decisions:
+        panels = decision_panels(d, heightmap_size)
+        outcome = np.zeros((PANEL, PANEL, 3), np.uint8)
+        for i, line in enumerate(d["outcome_lines"]):
+            outcome = _text(outcome, line, 30 + 22 * i)
+        rows.append(np.concatenate([*panels, outcome], axis=1))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    iio.imwrite(path, np.concatenate(rows, axis=0))
+    return path
+
+
+def _text(img: np.ndarray, text: str, y: int) -> np.ndarray:
+    import cv2
+
+    out = np.ascontiguousarray(img)
+    cv2.putText(out, text, (6, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    return out
+
+
+# ----------------------------------------------------------------------------- episode
+def describe(env, action: int, maps: np.ndarray, obs: dict, primitives: tuple[str, ...], index: int) -> dict:
+    """The decision ``action`` of the unwrapped task ``env`` for drawing: pixel, primitive, direction and length."""
+    task = env.unwrapped
+    ws = task.workspace
+    p, r, row, col = (int(v) for v in task.action_layout.decode(action))
+    name = primitives[p]
+    yaw = float(ws.rotation_to_yaw(r))
+    if name == "grasp":
+        direction, length = np.array([math.cos(yaw), math.sin(yaw)]), JAW_SPAN / ws.pixel_size
+    else:
+        direction, length = ws.slide_direction(r, name.split("_")[0]), ws.slide_length / ws.pixel_size
+    return dict(index=index, action=action, primitive=name, rotation=r, row=row, col=col, degrees=math.degrees(yaw) % 360,
+                direction=direction, length_px=length, qmap=maps[p, r], q=float(maps[p, r, row, col]),
+                color=obs["color_heightmap"][0].cpu().numpy(), depth=obs["depth_heightmap"][0].cpu().numpy())
+
+
+def outcome_lines(info: dict, reward: float) -> list[str]:
+    lines = [f"reward {reward:.2f}", f"grasped {bool(info['grasp_success'])}", f"placed {bool(info['place_success'])}"]
+    if "slide_changed" in info and info.get("primitive") != "grasp":
+        lines.append(f"scene changed {bool(info['slide_changed'])}")
+    lines.append(f"left {int(info['objects_remaining'])} objects")
+    if info.get("reason"):
+        lines.append(str(info["reason"])[:34])
+    return lines
+
+
+def run(cfg: ClutterVideoConfig) -> dict:
+    """Film one greedy episode; write ``episode.mp4``, ``decisions.png`` and ``video_summary.json`` into ``cfg.out``.
+
+    Raises:
+        FileNotFoundError: the checkpoint does not exist.
+        ValueError: the checkpoint is unreadable, or the scenario does not fit its task.
+    """
+    import imageio.v3 as iio
+
+    device = resolve_device(cfg.device)
+    actor, train_cfg, counters = load_policy(cfg.checkpoint_path, device, grasp_only=cfg.grasp_only)
+    primitives = actor.q_network.primitives
+    torchrl_env = make_env(train_cfg, render_mode="rgb_array", **scenario_options(cfg.scenario, train_cfg.task))
+    env = torchrl_env.maniskill_env
+    size = train_cfg.heightmap_size
+    frames: list[np.ndarray] = []
+    current: list[np.ndarray] = []  # the decision panel shown beside the scene while its primitive runs
+    counter = [0]
+
+    def grab():
+        counter[0] += 1
+        if counter[0] % cfg.frame_every == 0:
+            frames.append(np.concatenate([env.render()[0].cpu().numpy(), current[0]], axis=1))
+
+    decisions, records = [], []
+    try:
+        obs, info = env.reset(seed=cfg.seed)
+        objects = int(info["num_objects"])
+        env.unwrapped.set_control_step_callback(grab)
+        done = False
+        while not done and len(decisions) < cfg.max_steps:
+            action, maps = decide(actor, obs, device)
+            decision = describe(env, action, maps.numpy(), obs, primitives, len(decisions))
+            panels = decision_panels(decision, size)
+            scene_h = env.render()[0].shape[0]
+            side = np.concatenate([panels[3], panels[2]], axis=0)  # action on the heightmap above its Q map
+            current[:] = [_fit_height(side, scene_h)]
+            frames.append(np.concatenate([env.render()[0].cpu().numpy(), current[0]], axis=1))
+            obs, reward, terminated, truncated, info = env.step(action)
+            decision["outcome_lines"] = outcome_lines(info, float(reward.item()))
+            decisions.append(decision)
+            records.append(dict(decision=decision["index"], primitive=decision["primitive"], rotation=decision["rotation"],
+                                row=decision["row"], col=decision["col"], q=decision["q"], reward=float(reward.item()),
+                                grasp_success=bool(info["grasp_success"]), place_success=bool(info["place_success"]),
+                                objects_remaining=int(info["objects_remaining"]), reason=str(info.get("reason", ""))))
+            done = bool(terminated.item() or truncated.item())
+        env.unwrapped.set_control_step_callback(None)
+    finally:
+        torchrl_env.close()
+
+    out = cfg.out
+    out.mkdir(parents=True, exist_ok=True)
+    video = out / "episode.mp4"
+    iio.imwrite(video, np.stack([_even(f) for f in frames]), fps=cfg.fps, codec="libx264")
+    strip = decisions_strip(decisions, size, out / "decisions.png")
+    summary = dict(
+        checkpoint=str(cfg.checkpoint_path), scenario=cfg.scenario, seed=cfg.seed, objects=objects, decisions=records,
+        placed=sum(r["place_success"] for r in records), cleared=bool(info["objects_remaining"] == 0), frames=len(frames),
+        train_counters=counters, config={k: str(v) for k, v in dataclasses.asdict(cfg).items()},
+        files=dict(video=str(video), strip=str(strip), summary=str(out / "video_summary.json")),
+    )
+    write_json(out / "video_summary.json", summary)
+    return summary
+
+
+def _fit_height(img: np.ndarray, height: int) -> np.ndarray:
+    import cv2
+
+    width = int(round(img.shape[1] * height / img.shape[0]))
+    return cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)
+
+
+def _even(frame: np.ndarray) -> np.ndarray:
+    """Crop to even sides (H.264 with yuv420p needs them)."""
+    return frame[: frame.shape[0] // 2 * 2, : frame.shape[1] // 2 * 2]
+
+
+__all__ = ["ClutterVideoConfig", "colorize", "decision_panels", "decisions_strip", "describe", "draw_action", "run"]
