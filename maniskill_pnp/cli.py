@@ -17,6 +17,29 @@ def _demo(args) -> None:
         raise SystemExit("demo pick-and-place failed: " + json.dumps(summary["stages"]))
 
 
+def _quickstart(args) -> None:
+    import dataclasses
+
+    from maniskill_pnp.quickstart import QuickstartConfig, report, run
+
+    try:
+        summary = run(QuickstartConfig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(QuickstartConfig)}))
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"quickstart: {e}") from e
+    print(report(summary))
+
+
+def _export_clutter(args) -> None:
+    from maniskill_pnp.agents.clutter_recipe import export_weights
+
+    try:
+        path = export_weights(args.checkpoint / "checkpoint.pt" if args.checkpoint.is_dir() else args.checkpoint, args.out,
+                              half=args.half)
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"export-clutter: {e}") from e
+    print(f"agent: {path} ({path.stat().st_size / 2**20:.1f} MiB)")
+
+
 def _bench(args) -> None:
     if args.which == "primitives":
         from maniskill_pnp.bench.primitives import PrimitivesBenchConfig, run
@@ -29,9 +52,17 @@ def _bench(args) -> None:
     elif args.which == "conveyor":
         from maniskill_pnp.bench.conveyor import ConveyorBenchConfig, run as run_conveyor
 
-        run_conveyor(ConveyorBenchConfig(iterations=args.iterations, out=args.out))
+        run_conveyor(ConveyorBenchConfig(iterations=args.iterations, steps=args.steps, out=args.out))
     elif args.which in ("pixel-memory", "decision-cost"):
         _bench_pixel_dqn(args)
+    elif args.which == "soak":
+        from maniskill_pnp.bench.soak import SoakBenchConfig, run as run_soak
+
+        try:
+            cfg = SoakBenchConfig(actions=args.actions, warmup=200 if args.warmup is None else args.warmup, out=args.out / "soak.json")
+        except ValueError as e:
+            raise SystemExit(f"bench soak: {e}") from e
+        run_soak(cfg)
 
 
 def _bench_pixel_dqn(args) -> None:
@@ -87,7 +118,8 @@ def _add_pixel_bench_args(bench: argparse.ArgumentParser) -> None:
                        "one N, decision-cost one or more " + default("num_primitives"))
     bench.add_argument("--repeats", type=int, default=None,
                        help=pixel + "training steps per variant / timed decisions and trunk passes " + default("repeats"))
-    bench.add_argument("--warmup", type=int, default=None, help="decision-cost: untimed warm-up rounds " + default("warmup"))
+    bench.add_argument("--warmup", type=int, default=None, help="decision-cost: untimed warm-up rounds " + default("warmup")
+                       + "; soak: actions before the memory baseline (default: 200)")
     bench.add_argument("--device", default=None, help=pixel + "torch device; auto: CUDA when available " + default("device"))
     bench.add_argument("--threads", type=int, default=None,
                        help=pixel + "CPU threads of torch; 1 keeps timings steady while other jobs share the cores "
@@ -101,7 +133,10 @@ def _train_conveyor(args) -> None:
     from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, main
 
     fields = {f: getattr(args, f) for f in _conveyor_fields()}
-    summary = main(ConveyorConfig(**fields))
+    try:
+        summary = main(ConveyorConfig(**fields))
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"train-conveyor: {e}") from e
     print(json.dumps(summary, indent=2))
 
 
@@ -160,17 +195,16 @@ def _plot_clutter(args) -> None:
     print(f"curves: {args.out}")
 
 
-def _add_clutter_eval_args(parser: argparse.ArgumentParser) -> None:
-    """The checkpoint argument and one option per other ClutterEvalConfig field; help = field docstring."""
+def _add_checkpoint_args(parser: argparse.ArgumentParser, config_cls) -> None:
+    """The checkpoint argument and one option per other field of ``config_cls`` (ClutterEvalConfig or
+    ClutterVideoConfig); help = field docstring."""
     import dataclasses
 
-    from maniskill_pnp.agents.clutter_eval import ClutterEvalConfig
     from maniskill_pnp.agents.run_io import field_docs
 
-    docs = field_docs(ClutterEvalConfig)
+    docs = field_docs(config_cls)
     parser.add_argument("checkpoint", type=Path, help=docs["checkpoint"])
-    types = dict(out=Path, device=str)
-    for f in dataclasses.fields(ClutterEvalConfig):
+    for f in dataclasses.fields(config_cls):
         if f.name == "checkpoint":
             continue
         help_text = docs[f.name].replace("%", "%%") + " (default: %(default)s)"
@@ -180,7 +214,35 @@ def _add_clutter_eval_args(parser: argparse.ArgumentParser) -> None:
         elif isinstance(f.default, bool):
             parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default, help=help_text)
         else:
-            parser.add_argument(flag, type=types.get(f.name, int), default=f.default, help=help_text)
+            kind = Path if f.name == "out" else int if f.default is None else type(f.default)
+            parser.add_argument(flag, type=kind, default=f.default, help=help_text)
+
+
+def _add_config_args(parser: argparse.ArgumentParser, cls) -> None:
+    """One option per field of the config dataclass ``cls`` (all fields with plain defaults); help = field docstring."""
+    import dataclasses
+
+    from maniskill_pnp.agents.run_io import field_docs
+
+    docs = field_docs(cls)
+    for f in dataclasses.fields(cls):
+        kind = Path if f.name == "out" else type(f.default)
+        parser.add_argument("--" + f.name.replace("_", "-"), type=kind, default=f.default,
+                            help=docs[f.name].replace("%", "%%") + " (default: %(default)s)")
+
+
+def _record_clutter(args) -> None:
+    import dataclasses
+
+    from maniskill_pnp.agents.clutter_video import ClutterVideoConfig, run
+
+    try:
+        summary = run(ClutterVideoConfig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(ClutterVideoConfig)}))
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"record-clutter: {e}") from e
+    print(f"{len(summary['decisions'])} decisions, {summary['placed']} of {summary['objects']} objects placed, "
+          f"{summary['frames']} frames")
+    print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
 
 
 def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:
@@ -188,7 +250,7 @@ def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:
     import dataclasses
 
     from maniskill_pnp.agents.clutter_recipe import LOSSES, OPTIMIZERS, PRESETS, TASKS, ClutterConfig
-    from maniskill_pnp.agents.run_io import field_docs
+    from maniskill_pnp.agents.run_io import LOGGERS, field_docs
     from maniskill_pnp.agents.pixel_fcn import BACKBONES
 
     docs = field_docs(ClutterConfig)
@@ -210,7 +272,7 @@ def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:
             parser.add_argument(flag, type=str, default=None, help=help_text)
         else:
             choices = dict(backbone=sorted(BACKBONES), task=list(TASKS), loss=list(LOSSES), optimizer=list(OPTIMIZERS),
-                           reward_scheme=["default", "no_slide_reward"]).get(f.name)
+                           reward_scheme=["default", "no_slide_reward"], logger=list(LOGGERS)).get(f.name)
             parser.add_argument(flag, type=type(f.default), choices=choices, default=None, help=help_text)
 
 
@@ -226,11 +288,11 @@ def _add_conveyor_train_args(parser: argparse.ArgumentParser) -> None:
     import dataclasses
 
     from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig
-    from maniskill_pnp.agents.run_io import field_docs
+    from maniskill_pnp.agents.run_io import LOGGERS, field_docs
     from maniskill_pnp.agents.tabular import ALGORITHMS
     from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, REWARD_SCHEMES, SPEEDS
 
-    choices = dict(algorithm=ALGORITHMS, reward_scheme=REWARD_SCHEMES, alignment=ALIGNMENTS, speed=SPEEDS)
+    choices = dict(algorithm=ALGORITHMS, reward_scheme=REWARD_SCHEMES, alignment=ALIGNMENTS, speed=SPEEDS, logger=LOGGERS)
     docs = field_docs(ConveyorConfig)
     for f in dataclasses.fields(ConveyorConfig):
         flag = "--" + f.name.replace("_", "-")
@@ -254,18 +316,28 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=int, default=0, help="episode seed: cube position and yaw (default: %(default)s)")
     demo.set_defaults(func=_demo)
 
+    quick = sub.add_parser("quickstart", help="the README's main job: train and evaluate the conveyor Q-learning agent, "
+                           "then film one ClutterGraspSlide-v1 episode of the bundled gs-cpu-small agent (~10 min on 2 cores)")
+    from maniskill_pnp.quickstart import QuickstartConfig
+
+    _add_config_args(quick, QuickstartConfig)
+    quick.set_defaults(func=_quickstart)
+
     bench = sub.add_parser("bench", help="run a benchmark; prints numbers and writes JSON")
     bench.add_argument(
-        "which", choices=["primitives", "clutter-oracle", "conveyor", "pixel-memory", "decision-cost"],
+        "which", choices=["primitives", "clutter-oracle", "conveyor", "pixel-memory", "decision-cost", "soak"],
         help="primitives: pick-and-place success, planning and wall time; "
         "clutter-oracle: ClutterGrasp-v1 cleared by the scripted heightmap oracle (10 objects, --episodes scenes); "
         "conveyor: train Q-learning and SARSA with the default config, then the random test cases; "
         "pixel-memory: peak memory and time of one training step of a pixel Q network, DenseNet memory_efficient "
         "on vs off, each in a fresh process; decision-cost: time of one greedy decision / time of its bare trunk "
-        "forwards (target <= 1.3); both sized by the options below",
+        "forwards (target <= 1.3); both sized by the options below; soak: --actions random primitive actions on "
+        "ClutterGraspSlide-v1, memory growth after --warmup and leaked scene objects across resets",
     )
     bench.add_argument("--episodes", type=int, default=20, help="seeded episodes (primitives) or scenes (clutter-oracle) (default: %(default)s)")
     bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="folder for the JSON report (default: %(default)s)")
+    bench.add_argument("--steps", type=int, default=3000, help="conveyor: training steps of each agent (default: %(default)s)")
+    bench.add_argument("--actions", type=int, default=2000, help="soak: primitive actions in all (default: %(default)s)")
     bench.add_argument("--iterations", type=int, default=50, help="conveyor: iterations per random test case (default: %(default)s)")
     _add_pixel_bench_args(bench)
     bench.set_defaults(func=_bench)
@@ -292,8 +364,24 @@ def build_parser() -> argparse.ArgumentParser:
 
     evc = sub.add_parser("eval-clutter", help="greedy evaluation of a clutter DQN checkpoint per scenario: DESIGN.md metrics, "
                          "Table IX (Markdown, CSV), Q-map figure")
-    _add_clutter_eval_args(evc)
+    from maniskill_pnp.agents.clutter_eval import ClutterEvalConfig
+    from maniskill_pnp.agents.clutter_video import ClutterVideoConfig
+
+    _add_checkpoint_args(evc, ClutterEvalConfig)
     evc.set_defaults(func=_eval_clutter)
+
+    rec = sub.add_parser("record-clutter", help="film one greedy episode of a clutter DQN checkpoint: MP4 of the arm's "
+                         "motion beside each decision, and a strip of heightmap -> Q map -> action per decision")
+    _add_checkpoint_args(rec, ClutterVideoConfig)
+    rec.set_defaults(func=_record_clutter)
+
+    export = sub.add_parser("export-clutter", help="a shareable agent from a clutter DQN checkpoint: config and network "
+                            "weights only (float16), loadable by eval-clutter and record-clutter")
+    export.add_argument("checkpoint", type=Path, help="checkpoint.pt of a train-clutter run, or the run folder holding it")
+    export.add_argument("--out", type=Path, required=True, help="file to write (e.g. my-agent.pt)")
+    export.add_argument("--half", action=argparse.BooleanOptionalAction, default=True,
+                        help="store floating-point weights as float16 (default: %(default)s)")
+    export.set_defaults(func=_export_clutter)
 
     plot = sub.add_parser("plot-clutter", help="training curves (grasp success, success rate) of clutter runs in one PNG, "
                           "with first / last window numbers")

@@ -37,3 +37,16 @@ def wall_env():
     env = gym.make("CubeToBin-v1", obs_mode="state", control_mode="pd_joint_pos", obstacles=(WALL,), **CPU)
     yield env
     env.close()
+
+
+@pytest.fixture(scope="session")
+def tiny_clutter_run(tmp_path_factory):
+    """A run folder trained for two grasps: 32 px heightmaps, 2 rotations, 2 objects, the small backbone."""
+    from maniskill_pnp.agents.clutter_recipe import ClutterConfig, main as train
+
+    out = tmp_path_factory.mktemp("clutter_runs")
+    cfg = ClutterConfig.from_preset("cpu-small", heightmap_size=32, num_rotations=2, num_objects=2, steps=2,
+                                    checkpoint_interval=2, log_interval=1, out=out)
+    summary = train(cfg)
+    assert summary["steps"] == 2
+    return cfg.run_dir

@@ -12,20 +12,9 @@ from maniskill_pnp.agents.clutter_recipe import ClutterConfig, main as train
 from maniskill_pnp.cli import main as cli
 
 
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
-    """A run folder trained for two grasps: 32 px heightmaps, 2 rotations, 2 objects, the small backbone."""
-    out = tmp_path_factory.mktemp("clutter_runs")
-    cfg = ClutterConfig.from_preset("cpu-small", heightmap_size=32, num_rotations=2, num_objects=2, steps=2,
-                                    checkpoint_interval=2, log_interval=1, out=out)
-    summary = train(cfg)
-    assert summary["steps"] == 2
-    return cfg.run_dir
-
-
-def test_eval_writes_metrics_tables_and_q_map_figure(tiny_run, tmp_path):
+def test_eval_writes_metrics_tables_and_q_map_figure(tiny_clutter_run, tmp_path):
     out = tmp_path / "eval"
-    summary = run(ClutterEvalConfig(checkpoint=tiny_run, episodes=1, max_steps=2, out=out))
+    summary = run(ClutterEvalConfig(checkpoint=tiny_clutter_run, episodes=1, max_steps=2, out=out))
 
     for name in ("eval_summary.json", "eval_table.md", "eval_table.csv", "eval_episodes.csv", "q_heatmaps.png"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
@@ -87,3 +76,39 @@ def test_grasp_slide_table_ix_over_scenarios_and_grasp_only(tmp_path):
                                    out=tmp_path / "grasp_only"))
     (episode,) = grasps["episodes"]
     assert episode["grasp_attempts"] == episode["actions"]
+
+
+def test_record_clutter_films_the_arm_beside_each_decision(tiny_clutter_run, tmp_path):
+    """The MP4 holds the scene render beside the decision panels, many frames per decision (the arm's motion);
+    the strip has one row per decision; the JSON lists the decisions with their outcomes."""
+    import imageio.v3 as iio
+
+    from maniskill_pnp.agents.clutter_video import PANEL, ClutterVideoConfig, run as record
+
+    out = tmp_path / "video"
+    summary = record(ClutterVideoConfig(checkpoint=tiny_clutter_run, max_steps=2, frame_every=4, out=out))
+    decisions = summary["decisions"]
+    assert 1 <= len(decisions) <= 2
+    assert {"primitive", "rotation", "row", "col", "q", "reward", "grasp_success"} <= set(decisions[0])
+    assert json.loads((out / "video_summary.json").read_text())["decisions"] == decisions
+
+    video = iio.imread(out / "episode.mp4")
+    assert video.ndim == 4 and video.shape[0] == summary["frames"]
+    assert summary["frames"] > 10 * len(decisions)  # frames during the primitives, not one per decision
+    assert video.shape[1] == 512 and video.shape[2] > 512  # the 512 px render camera plus the decision panels
+    assert video[:, :, :512].std(axis=0).mean() > 1.0  # the scene changes: the arm moves
+
+    strip = iio.imread(out / "decisions.png")
+    assert strip.shape[0] == PANEL * len(decisions) and strip.shape[1] == 5 * PANEL
+    assert strip.std() > 0
+
+
+def test_record_clutter_errors_name_the_problem(tmp_path):
+    from maniskill_pnp.agents.clutter_video import ClutterVideoConfig
+
+    with pytest.raises(ValueError, match="unknown scenario 'dense'"):
+        ClutterVideoConfig(checkpoint=tmp_path, scenario="dense")
+    with pytest.raises(ValueError, match="frame_every must be >= 1"):
+        ClutterVideoConfig(checkpoint=tmp_path, frame_every=0)
+    with pytest.raises(SystemExit, match="record-clutter: .*nowhere"):
+        cli(["record-clutter", str(tmp_path / "nowhere"), "--out", str(tmp_path / "video")])

@@ -6,6 +6,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
 from maniskill_pnp.tasks import TASK_IDS, ClutterGraspSlideEnv
@@ -119,6 +120,16 @@ def test_slide_through_empty_space_is_a_failure(two_cubes):
     two_cubes.reset(seed=0)
     reward, info = act(two_cubes, "left_slide", 0, (CX + 0.1, CY - 0.15, 0.0))
     assert not info["slide_changed"] and reward == 0.0 and info["consecutive_failures"] == 1
+
+
+@pytest.mark.parametrize("action", [-1, N, 2.0, float("nan"), np.array([1, 2]), np.zeros((2,), dtype=np.int64), True, "7"])
+def test_bad_actions_name_the_valid_range_before_moving(two_cubes, action):
+    two_cubes.reset(seed=0)
+    q0 = two_cubes.unwrapped.agent.robot.get_qpos().clone()
+    with pytest.raises(ValueError, match=f"0..{N - 1}"):
+        two_cubes.step(action)
+    assert torch.equal(two_cubes.unwrapped.agent.robot.get_qpos(), q0)
+    assert two_cubes.unwrapped.num_actions == 0
 
 
 def test_slide_that_knocks_an_object_out_of_the_workspace_is_a_failure():

@@ -80,10 +80,7 @@ def run_curves(run_dir: str | Path, window: int = 50) -> dict:
 def plot_training_curves(runs: dict[str, str | Path], out_png: str | Path, window: int = 50) -> dict[str, dict]:
     """One PNG with two panels (grasp success, success rate vs. action) holding every run; returns each run's
     ``first`` / ``last`` numbers (see :func:`run_curves`)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # the backend is left to the caller (Agg when there is no display)
 
     if not runs:
         raise ValueError("give at least one run folder")

@@ -227,10 +227,7 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
 def plot_q_heatmaps(first: dict, primitives: tuple[str, ...], path: Path) -> Path:
     """Colour and depth heightmaps, then the Q map of every (primitive, rotation) on one colour scale; the chosen
     ``(rotation, row, col)`` is marked on its map and on the heightmaps. Written as PNG (matplotlib's Agg backend)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # the backend is left to the caller (Agg when there is no display)
 
     maps = first["maps"]
     P, R, H, W = maps.shape

@@ -10,7 +10,8 @@ baseline) and a refresh of the sampled priorities.
 
 Run it with ``maniskill-pnp train-clutter --preset cpu-small --seed 1`` (``--preset gs-cpu-small`` for G&S); a run folder
 ``<out>/<run_name>/`` receives ``config.json``, ``checkpoint.pt`` (written atomically every ``checkpoint_interval``
-steps and at the end), ``train_summary.json``, ``actions.csv`` (one row per action, see :data:`ACTION_COLUMNS`) and the CSV logs (``scalars/train/grasp_success.csv`` ...).
+steps and at the end), ``train_summary.json``, ``actions.csv`` (one row per action, see :data:`ACTION_COLUMNS`) and the CSV logs (``scalars/train/grasp_success.csv`` ...;
+with ``logger="tensorboard"`` a TensorBoard event file instead).
 ``--resume`` continues from the run folder's checkpoint (model, optimizer, target network, ε, step and episode
 counters, RNG states) and, with ``save_replay`` (the default), from the replay buffer saved beside it
 (``replay_step<N>/``: TorchRL's ``ReplayBuffer.dumps`` of the storage, priorities and writer; about 40 kB per
@@ -42,7 +43,9 @@ from torchrl.envs.utils import ExplorationType
 from torchrl.objectives import HardUpdate
 from tqdm import tqdm
 
-from maniskill_pnp.agents.run_io import RunConfig, atomic_write_bytes, make_logger, write_json
+from maniskill_pnp.agents.run_io import (
+    RunConfig, atomic_write_bytes, check_logger, make_logger, require_logger, write_json,
+)
 from maniskill_pnp.agents.pixel_fcn import BACKBONES, MultiPrimitiveQNetwork
 from maniskill_pnp.agents.pixel_loss import PixelBCELoss, PixelDQNLoss
 from maniskill_pnp.agents.pixel_mask import HeightmapActionMask
@@ -147,6 +150,10 @@ class ClutterConfig(RunConfig):
     """Log the training metrics every this many steps."""
     success_window: int = 50
     """Grasp attempts in the running grasp success shown on the progress bar and logged."""
+    logger: str = "csv"
+    """Where the training metrics go: "csv" (CSV files in the run folder, read back by the evaluation/plot commands)
+    or "tensorboard" (TorchRL's TensorboardLogger; needs the tensorboard extra,
+    ``pip install maniskill_pnp[tensorboard]``). The per-action ``actions.csv`` is written either way."""
     resume: bool = False
     """Continue from the run folder's checkpoint.pt (its architecture fields must match this config)."""
     out: Path = Path("runs/clutter")
@@ -162,6 +169,7 @@ class ClutterConfig(RunConfig):
             raise ValueError(f"unknown optimizer {self.optimizer!r}; valid: {list(OPTIMIZERS)}")
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; valid: {list(LOSSES)}")
+        check_logger(self.logger)
         if self.task == "grasp" and self.reward_scheme != "default":
             raise ValueError(f"reward_scheme {self.reward_scheme!r} needs task 'grasp_slide' (ClutterGrasp-v1 has one scheme)")
         if self.loss == "bce" and (self.double_dqn or self.delay_value):
@@ -410,9 +418,21 @@ def load_checkpoint(path: Path) -> dict:
     return payload
 
 
+def export_weights(checkpoint: Path, dest: Path, half: bool = True) -> Path:
+    """A shareable agent from a training checkpoint: only its config, counters and network weights (float16 with
+    ``half``), in the checkpoint format, so ``eval-clutter`` and ``record-clutter`` load it like the original.
+    Optimizer, target network, RNG and replay are dropped: it cannot be resumed."""
+    payload = load_checkpoint(checkpoint)
+    model = {k: v.half() if half and v.is_floating_point() else v for k, v in payload["model"].items()}
+    slim = dict(format=CHECKPOINT_FORMAT, config=payload["config"], model=model, counters=payload.get("counters", {}))
+    atomic_write_bytes(Path(dest), lambda f: torch.save(slim, f))
+    return Path(dest)
+
+
 # ----------------------------------------------------------------------------- main
 def main(cfg: ClutterConfig) -> dict:
     """Train one pixelwise DQN grasping agent; returns a summary (run folder, steps, episodes, grasp success)."""
+    require_logger(cfg.logger)  # a missing tensorboard extra fails before anything is built
     run_dir = cfg.run_dir
     ckpt_path = run_dir / "checkpoint.pt"
     payload = None
@@ -482,8 +502,8 @@ def main(cfg: ClutterConfig) -> dict:
         exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
     )
 
-    # 6. make the logger
-    logger = make_logger(run_dir)
+    # 6. make the logger (CSV files or TensorBoard events in the run folder)
+    logger = make_logger(run_dir, cfg.logger)
 
     def checkpoint() -> None:
         replay_meta = dict(size=len(replay), capacity=cfg.replay_capacity, dir=None)
@@ -493,6 +513,7 @@ def main(cfg: ClutterConfig) -> dict:
             replay.dumps(run_dir / replay_meta["dir"])
         save_checkpoint(ckpt_path, cfg=cfg, model=model, loss=loss, optimizer=optimizer, egreedy=egreedy,
                         counters=counters, replay_meta=replay_meta)
+        logger.flush()  # the logs reach the disk with every checkpoint
         for old in run_dir.glob("replay_step*"):
             if old.name != replay_meta["dir"]:
                 shutil.rmtree(old, ignore_errors=True)
@@ -555,6 +576,7 @@ def main(cfg: ClutterConfig) -> dict:
             break
     bar.close()
     tracker.close()
+    logger.close()  # flushes TensorBoard's buffered events into the file
     collector.shutdown()
     env.close()
 
@@ -566,6 +588,6 @@ def main(cfg: ClutterConfig) -> dict:
 
 
 __all__ = [
-    "ACTION_COLUMNS", "ClutterConfig", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model",
+    "ACTION_COLUMNS", "ClutterConfig", "export_weights", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model",
     "save_checkpoint", "to_transitions",
 ]

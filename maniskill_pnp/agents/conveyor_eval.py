@@ -177,11 +177,9 @@ def read_curve(run_dir: Path, name: str = "train/success_rate") -> tuple[np.ndar
 
 
 def plot_curves(run_dirs: list[Path], out: Path) -> list[Path]:
-    """One PNG per comparison: algorithms under one reward scheme, reward schemes under one algorithm."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """One PNG per comparison: algorithms under one reward scheme, reward schemes under one algorithm (with a
+    single run: its own curve, under its reward scheme)."""
+    import matplotlib.pyplot as plt  # the backend is left to the caller (Agg when there is no display)
 
     runs = []
     for d in run_dirs:
@@ -196,7 +194,7 @@ def plot_curves(run_dirs: list[Path], out: Path) -> list[Path]:
         groups.setdefault(("algorithm", cfg.algorithm), []).append((f"{cfg.reward_scheme} rewards", x, y))
     written = []
     for (by, value), lines in groups.items():
-        if len(lines) < 2:
+        if len(lines) < 2 and not (len(runs) == 1 and by == "scheme"):
             continue
         fig, ax = plt.subplots(figsize=(6, 3.6))
         for label, x, y in lines:

@@ -6,7 +6,8 @@ come from the task's public :class:`~maniskill_pnp.tasks.conveyor_config.Conveyo
 
 Run it with ``python -m maniskill_pnp.cli train-conveyor --algorithm sarsa --seed 1``; a run folder
 ``<out>/<algorithm>_<reward_scheme>_seed<seed>/`` receives ``config.json``, ``qtable.pt`` and the CSV logs
-(``scalars/train/success_rate.csv`` ...).
+(``scalars/train/success_rate.csv`` ..., read back by the evaluation's learning curves), or with
+``logger="tensorboard"`` a TensorBoard event file instead.
 
 Metric: ``success_rate`` (DESIGN.md: objects placed in the bin / pick-and-place attempts). On the conveyor every
 episode is one object and one pick-and-place attempt, so it is the fraction of episodes whose object ended in the
@@ -28,7 +29,9 @@ from torchrl.envs.transforms import ActionMask
 from torchrl.envs.utils import ExplorationType
 from tqdm import tqdm
 
-from maniskill_pnp.agents.run_io import RunConfig, atomic_write_bytes, make_logger, write_json
+from maniskill_pnp.agents.run_io import (
+    RunConfig, atomic_write_bytes, check_logger, make_logger, require_logger, write_json,
+)
 from maniskill_pnp.agents.tabular import ALGORITHMS, QTable, StateActionMask, bootstrap_for, make_qtable_policy, td_update
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, REWARD_SCHEMES, SPEEDS, ConveyorSpec
 
@@ -78,6 +81,10 @@ class ConveyorConfig(RunConfig):
     """Episodes in the running success rate shown on the progress bar and logged."""
     log_interval: int = 30
     """Log the training metrics every this many steps."""
+    logger: str = "csv"
+    """Where the training metrics go: "csv" (CSV files in the run folder, read back by the evaluation/plot commands)
+    or "tensorboard" (TorchRL's TensorboardLogger; needs the tensorboard extra,
+    ``pip install maniskill_pnp[tensorboard]``)."""
     out: Path = Path("runs/conveyor")
     """Parent folder of the run folder ``<algorithm>_<reward_scheme>_seed<seed>``."""
 
@@ -86,6 +93,7 @@ class ConveyorConfig(RunConfig):
             raise ValueError(f"unknown algorithm {self.algorithm!r}; valid: {list(ALGORITHMS)}")
         if self.reward_scheme not in REWARD_SCHEMES:
             raise ValueError(f"unknown reward_scheme {self.reward_scheme!r}; valid: {list(REWARD_SCHEMES)}")
+        check_logger(self.logger)
         kinds = (self.object_kinds,) if isinstance(self.object_kinds, str) else tuple(self.object_kinds)
         if not kinds or any(k not in OBJECT_KINDS for k in kinds):
             raise ValueError(f"object_kinds must be a non-empty subset of {list(OBJECT_KINDS)}, got {list(kinds)}")
@@ -243,6 +251,7 @@ class NextActionPairing:
 # ----------------------------------------------------------------------------- main
 def main(cfg: ConveyorConfig) -> dict:
     """Train one tabular agent; returns a summary (run folder, files, final running success rate, wall time)."""
+    require_logger(cfg.logger)  # a missing tensorboard extra fails before anything is built
     torch.manual_seed(cfg.seed)
     spec = ConveyorSpec()
     run_dir = cfg.run_dir
@@ -268,8 +277,8 @@ def main(cfg: ConveyorConfig) -> dict:
         exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
     )
 
-    # 5. make the logger
-    logger = make_logger(run_dir)
+    # 5. make the logger (CSV files or TensorBoard events in the run folder)
+    logger = make_logger(run_dir, cfg.logger)
 
     # 6. main loop: collect, pair with a', TD-update, anneal ε, log
     outcomes: deque[bool] = deque(maxlen=cfg.success_window)
@@ -298,6 +307,7 @@ def main(cfg: ConveyorConfig) -> dict:
             logger.log_scalar("time/wall_s", time.perf_counter() - t0, step=frames)
             next_log = frames + cfg.log_interval
     bar.close()
+    logger.close()  # flushes TensorBoard's buffered events into the file
     collector.shutdown()
     env.close()
     wall = time.perf_counter() - t0

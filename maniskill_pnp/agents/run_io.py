@@ -122,9 +122,49 @@ def field_docs(cls) -> dict[str, str]:
     return docs
 
 
-def make_logger(run_dir: Path) -> Logger:
-    """CSV logs in the run folder; TensorBoard instead when the ``tensorboard`` package is importable."""
-    if importlib.util.find_spec("tensorboard") is not None:
+#: The loggers a recipe's ``logger`` field may name: CSV files in the run folder (read back by the evaluation and
+#: plot commands) or TorchRL's TensorboardLogger (needs the ``tensorboard`` extra).
+LOGGERS = ("csv", "tensorboard")
+
+
+class MissingExtraError(ImportError, ValueError):
+    """An option needs an optional extra of the package that is not installed (also a ValueError: a bad option value
+    on this machine, reported as such by the command line)."""
+
+
+def check_logger(kind) -> None:
+    """ValueError naming the valid values unless ``kind`` is one of :data:`LOGGERS` (a config's ``__post_init__``)."""
+    if kind not in LOGGERS:
+        raise ValueError(f"unknown logger {kind!r}; valid: {list(LOGGERS)}")
+
+
+def _tensorboard_installed() -> bool:
+    return importlib.util.find_spec("tensorboard") is not None
+
+
+def require_logger(kind: str) -> None:
+    """:func:`check_logger`, and :class:`MissingExtraError` naming the extra to install when ``kind`` needs a package
+    that is missing; a recipe calls it before building anything, so the error comes at once."""
+    check_logger(kind)
+    if kind == "tensorboard" and not _tensorboard_installed():
+        raise MissingExtraError(
+            "logger 'tensorboard' needs the tensorboard package: pip install 'maniskill_pnp[tensorboard]' "
+            "(or use logger 'csv')"
+        )
+
+
+def make_logger(run_dir: Path, kind: str) -> Logger:
+    """TorchRL's logger ``kind`` writing into the run folder.
+
+    ``"csv"``: :class:`~torchrl.record.loggers.csv.CSVLogger`, one ``scalars/<name>.csv`` per scalar (what the
+    evaluation and plot commands read back). ``"tensorboard"``:
+    :class:`~torchrl.record.loggers.tensorboard.TensorboardLogger`, an ``events.out.tfevents.*`` file in the run
+    folder. Raises what :func:`require_logger` raises. Close the logger when training ends, so TensorBoard's buffered
+    events reach the file.
+    """
+    require_logger(kind)
+    run_dir = Path(run_dir)
+    if kind == "tensorboard":
         from torchrl.record.loggers.tensorboard import TensorboardLogger
 
         return TensorboardLogger(exp_name=run_dir.name, log_dir=str(run_dir.parent))

@@ -25,11 +25,13 @@ class ConveyorBenchConfig:
 
     Attributes:
         iterations: Episodes per random test case (thesis: 50).
+        steps: Training steps of each agent (the recipe's default 3000).
         seed: Training seed of both agents.
         out: Folder of the runs, the evaluation and ``conveyor.json``.
     """
 
     iterations: int = 50
+    steps: int = 3000
     seed: int = 0
     out: Path = Path("runs/bench")
 
@@ -38,7 +40,7 @@ def run(cfg: ConveyorBenchConfig) -> dict:
     out = Path(cfg.out)
     trained = {}
     for algorithm in ALGORITHMS:
-        train_cfg = ConveyorConfig(algorithm=algorithm, seed=cfg.seed, out=out / "conveyor_runs")
+        train_cfg = ConveyorConfig(algorithm=algorithm, steps=cfg.steps, seed=cfg.seed, out=out / "conveyor_runs")
         trained[algorithm] = (train_cfg, train(train_cfg))
     report = evaluate(EvalConfig(
         checkpoints=tuple(c.run_dir for c, _ in trained.values()), iterations=cfg.iterations, out=out / "conveyor_eval",
