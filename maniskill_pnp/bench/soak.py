@@ -44,6 +44,7 @@ class SoakBenchConfig:
         num_rotations: Rotations of the action (the task default is 16).
         masked: Draw among the actions the heightmap mask allows (True) or over the whole action space.
         seed: Seed of the first episode and of the policy.
+        report_every: Write the report so far (``"complete": false``) every this many actions.
         out: JSON report path (the PNG goes beside it).
     """
 
@@ -54,11 +55,14 @@ class SoakBenchConfig:
     num_rotations: int = 16
     masked: bool = True
     seed: int = 0
+    report_every: int = 100
     out: Path = Path("runs/bench/soak.json")
 
     def __post_init__(self):
         if self.actions < 1 or not 0 <= self.warmup < self.actions:
             raise ValueError(f"need actions >= 1 and 0 <= warmup < actions, got actions={self.actions}, warmup={self.warmup}")
+        if self.report_every < 1:
+            raise ValueError(f"report_every must be >= 1, got {self.report_every}")
 
 
 def rss_mb() -> float:
@@ -98,11 +102,12 @@ def run(cfg: SoakBenchConfig) -> dict:
     env = gym.make("ClutterGraspSlide-v1", num_objects=cfg.num_objects, workspace=workspace, **default_backends())
     mask = HeightmapActionMask(ClutterGraspSlideEnv.PRIMITIVES, cfg.num_rotations) if cfg.masked else None
     rng = np.random.default_rng(cfg.seed)
-    memory, counts, leaks = [], None, []
+    memory, leaks = [], []
     primitives, outcomes, faults = Counter(), Counter(), Counter()
     episodes, t0 = 0, time.perf_counter()
     obs, _ = env.reset(seed=cfg.seed)
     counts = scene_counts(env)
+    settings = {k: str(v) for k, v in asdict(cfg).items()}
     with tqdm(total=cfg.actions, desc="soak ClutterGraspSlide-v1", unit="action") as bar:
         for i in range(cfg.actions):
             obs, reward, terminated, truncated, info = env.step(random_action(obs, env, rng, mask))
@@ -121,25 +126,20 @@ def run(cfg: SoakBenchConfig) -> dict:
                 counts = now
             bar.set_postfix(episodes=episodes, rss_mb=f"{memory[-1]:.0f}")
             bar.update()
-    wall = time.perf_counter() - t0
+            if (i + 1) % cfg.report_every == 0 and i + 1 < cfg.actions:  # a partial report survives an interrupted soak
+                partial = summarize(memory, cfg.warmup, episodes, time.perf_counter() - t0, counts, leaks, primitives, outcomes, faults)
+                write_report(cfg.out, "soak", settings, dict(partial, complete=False))
     env.close()
-
-    after = np.asarray(memory[cfg.warmup:])
-    slope = float(np.polyfit(np.arange(len(after)), after, 1)[0]) * 1000 if len(after) > 1 else 0.0
-    results = dict(
-        actions=cfg.actions, episodes=episodes, wall_s=wall, actions_per_s=cfg.actions / wall,
-        rss_mb_start=memory[0], rss_mb_after_warmup=float(after[0]), rss_mb_end=memory[-1], rss_mb_max=max(memory),
-        growth_after_warmup_mb=float(memory[-1] - after[0]), max_growth_after_warmup_mb=float(after.max() - after[0]),
-        slope_mb_per_1000_actions=slope, scene_counts=counts, leaks=leaks, primitives=dict(primitives),
-        outcomes=dict(outcomes), faults=dict(faults), rss_mb_series=[round(m, 1) for m in memory],
-    )
-    path = write_report(cfg.out, "soak", {k: str(v) for k, v in asdict(cfg).items()}, results)
+    results = dict(summarize(memory, cfg.warmup, episodes, time.perf_counter() - t0, counts, leaks, primitives, outcomes, faults),
+                   complete=True)
+    path = write_report(cfg.out, "soak", settings, results)
     png = plot_memory(memory, cfg.warmup, path.with_suffix(".png"))
+    after, slope, wall = results["rss_mb_after_warmup"], results["slope_mb_per_1000_actions"], results["wall_s"]
     m = machine_info()
     print(f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}")
     print(f"ClutterGraspSlide-v1, random {'masked ' if cfg.masked else ''}policy: {cfg.actions} actions, {episodes} episodes, "
           f"{wall / 60:.1f} min ({results['actions_per_s']:.2f} actions/s)")
-    print(f"  RSS: start {memory[0]:.0f} MB, after warm-up ({cfg.warmup} actions) {after[0]:.0f} MB, end {memory[-1]:.0f} MB, "
+    print(f"  RSS: start {memory[0]:.0f} MB, after warm-up ({cfg.warmup} actions) {after:.0f} MB, end {memory[-1]:.0f} MB, "
           f"max {max(memory):.0f} MB")
     print(f"  growth after warm-up {results['growth_after_warmup_mb']:+.0f} MB (max {results['max_growth_after_warmup_mb']:+.0f} MB, "
           f"slope {slope:+.1f} MB per 1000 actions); target < 200 MB")
@@ -147,6 +147,20 @@ def run(cfg: SoakBenchConfig) -> dict:
     print(f"  primitives {dict(primitives)}, outcomes {dict(outcomes)}, faults {dict(faults)}")
     print(f"report: {path}\nplot: {png}")
     return results
+
+
+def summarize(memory, warmup, episodes, wall, counts, leaks, primitives, outcomes, faults) -> dict:
+    """The soak's numbers so far (see the module docstring); the memory baseline is the action after ``warmup``."""
+    base = memory[min(warmup, len(memory) - 1)]
+    after = np.asarray(memory[min(warmup, len(memory) - 1):])
+    slope = float(np.polyfit(np.arange(len(after)), after, 1)[0]) * 1000 if len(after) > 1 else 0.0
+    return dict(
+        actions=len(memory), episodes=episodes, wall_s=wall, actions_per_s=len(memory) / wall,
+        rss_mb_start=memory[0], rss_mb_after_warmup=base, rss_mb_end=memory[-1], rss_mb_max=max(memory),
+        growth_after_warmup_mb=float(memory[-1] - base), max_growth_after_warmup_mb=float(after.max() - base),
+        slope_mb_per_1000_actions=slope, scene_counts=counts, leaks=list(leaks), primitives=dict(primitives),
+        outcomes=dict(outcomes), faults=dict(faults), rss_mb_series=[round(m, 1) for m in memory],
+    )
 
 
 def plot_memory(memory: list[float], warmup: int, path: Path) -> Path:
@@ -166,4 +180,4 @@ def plot_memory(memory: list[float], warmup: int, path: Path) -> Path:
     return path
 
 
-__all__ = ["SoakBenchConfig", "random_action", "rss_mb", "run", "scene_counts"]
+__all__ = ["SoakBenchConfig", "random_action", "rss_mb", "run", "scene_counts", "summarize"]
