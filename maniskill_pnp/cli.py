@@ -214,7 +214,8 @@ def _add_checkpoint_args(parser: argparse.ArgumentParser, config_cls) -> None:
         elif isinstance(f.default, bool):
             parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default, help=help_text)
         else:
-            kind = Path if f.name == "out" else int if f.default is None else type(f.default)
+            optional = str if "str" in str(f.type) else int  # a None default: the annotation says the type
+            kind = Path if f.name == "out" else optional if f.default is None else type(f.default)
             parser.add_argument(flag, type=kind, default=f.default, help=help_text)
 
 
@@ -229,6 +230,20 @@ def _add_config_args(parser: argparse.ArgumentParser, cls) -> None:
         kind = Path if f.name == "out" else type(f.default)
         parser.add_argument("--" + f.name.replace("_", "-"), type=kind, default=f.default,
                             help=docs[f.name].replace("%", "%%") + " (default: %(default)s)")
+
+
+def _record_conveyor(args) -> None:
+    import dataclasses
+
+    from maniskill_pnp.agents.conveyor_video import ConveyorVideoConfig, run
+
+    try:
+        summary = run(ConveyorVideoConfig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(ConveyorVideoConfig)}))
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"record-conveyor: {e}") from e
+    steps = ", ".join(f"{d['phase']} -> {d['action']}" for d in summary["decisions"])
+    print(f"{steps}; placed: {summary['placed']}; {summary['frames']} frames")
+    print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
 
 
 def _record_clutter(args) -> None:
@@ -374,6 +389,13 @@ def build_parser() -> argparse.ArgumentParser:
                          "motion beside each decision, and a strip of heightmap -> Q map -> action per decision")
     _add_checkpoint_args(rec, ClutterVideoConfig)
     rec.set_defaults(func=_record_clutter)
+
+    from maniskill_pnp.agents.conveyor_video import ConveyorVideoConfig
+
+    recc = sub.add_parser("record-conveyor", help="film one greedy ConveyorProximity-v1 episode of a saved Q-table: the belt, "
+                          "the sensed state and the planned pre-pick, grasp and place, as MP4")
+    _add_checkpoint_args(recc, ConveyorVideoConfig)
+    recc.set_defaults(func=_record_conveyor)
 
     export = sub.add_parser("export-clutter", help="a shareable agent from a clutter DQN checkpoint: config and network "
                             "weights only (float16), loadable by eval-clutter and record-clutter")

@@ -33,6 +33,7 @@ import torch
 from maniskill_pnp.agents.clutter_eval import EPISODE_COLUMNS, METRICS, SCENARIO_COLUMNS, ClutterEvalConfig
 from maniskill_pnp.agents.clutter_recipe import ACTION_COLUMNS, CHECKPOINT_FORMAT, ClutterConfig
 from maniskill_pnp.agents.clutter_video import ClutterVideoConfig
+from maniskill_pnp.agents.conveyor_video import ConveyorVideoConfig
 from maniskill_pnp.agents.conveyor_recipe import QTABLE_FORMAT, ConveyorConfig
 from maniskill_pnp.quickstart import QuickstartConfig
 
@@ -52,7 +53,7 @@ CONVEYOR_RUN = "qlearning_normal_seed0"
 #: Subcommands whose --help is checked (``bench X --help`` is the help of ``bench``).
 HELP_COMMANDS = ["demo", "bench", "bench primitives", "bench clutter-oracle", "bench conveyor", "bench pixel-memory",
                  "bench decision-cost", "train-conveyor", "eval-conveyor", "train-clutter", "eval-clutter", "plot-clutter",
-                 "record-clutter", "export-clutter", "quickstart", "bench soak"]
+                 "record-clutter", "record-conveyor", "export-clutter", "quickstart", "bench soak"]
 HELP_DRIVER = """
 import contextlib, io, json, sys
 from maniskill_pnp.cli import main
@@ -169,7 +170,9 @@ def jobs(tmp_path_factory):
                                     "--num-primitives", "1", "--repeats", "1", "--threads", "1", "--out", "bench"]))
     j.chain(("train-conveyor", [*MODULE, "train-conveyor", "--steps", "30", "--log-interval", "6", "--out", "conveyor"]),
             ("eval-conveyor", [*MODULE, "eval-conveyor", f"conveyor/{CONVEYOR_RUN}", "--iterations", "1",
-                               "--out", "conveyor_eval"]))
+                               "--out", "conveyor_eval"]),
+            ("record-conveyor", [*MODULE, "record-conveyor", f"conveyor/{CONVEYOR_RUN}", "--kind", "sphere", "--speed", "fast",
+                                 "--frame-every", "4", "--out", "conveyor_video"]))
     j.chain(("demo", [*MODULE, "demo", "--seed", "0", "--out", "demo"]))
     j.chain(("bench conveyor", [*MODULE, "bench", "conveyor", "--steps", "30", "--iterations", "1", "--out", "bench_conveyor"]))
     j.chain(("bench primitives", [*MODULE, "bench", "primitives", "--episodes", "1", "--out", "bench"]))
@@ -405,6 +408,19 @@ def test_export_and_record_clutter(jobs):
     _png(out / "decisions.png", 200, 1000)
 
 
+def test_record_conveyor(jobs):
+    """One greedy episode of the tiny Q-table: the phases it decided, the MP4 of the belt and the arm."""
+    ran = jobs["record-conveyor"].ok()
+    out = jobs.out / "conveyor_video"
+    summary = _json(out / "video_summary.json", ("decisions", "placed", "frames", "files"))
+    phases = [d["phase"] for d in summary["decisions"]]
+    assert phases and phases[0] == "initial" and set(phases) <= {"initial", "pre_pick", "grasp"}
+    video = iio.imread(_nonempty(out / "episode.mp4"))
+    assert video.shape[0] == summary["frames"] > len(phases) and video.shape[1:3] == (512, 512)
+    assert video.std(axis=0).mean() > 1.0  # the belt and the arm move
+    assert "episode.mp4" in ran.stdout
+
+
 # ----------------------------------------------------------------------------- help and bad inputs
 def _flags(*names: str) -> list[str]:
     return ["--" + n.replace("_", "-") for n in names]
@@ -424,6 +440,7 @@ HELP_OPTIONS = {
     "plot-clutter": ["runs", "--labels", "--window", "--out"],
     "record-clutter": ["checkpoint", *_flags(*(f.name for f in dataclasses.fields(ClutterVideoConfig) if f.name != "checkpoint"))],
     "export-clutter": ["checkpoint", "--out", "--half"],
+    "record-conveyor": ["checkpoint", *_flags(*(f.name for f in dataclasses.fields(ConveyorVideoConfig) if f.name != "checkpoint"))],
     "quickstart": _flags(*(f.name for f in dataclasses.fields(QuickstartConfig))),
 }
 

@@ -235,7 +235,7 @@ def run(cfg: ClutterVideoConfig) -> dict:
     out = cfg.out
     out.mkdir(parents=True, exist_ok=True)
     video = out / "episode.mp4"
-    iio.imwrite(video, np.stack([_even(f) for f in frames]), fps=cfg.fps, codec="libx264")
+    iio.imwrite(video, np.stack([even_frame(f) for f in frames]), fps=cfg.fps, codec="libx264")
     strip = decisions_strip(decisions, size, out / "decisions.png")
     summary = dict(
         checkpoint=str(cfg.checkpoint_path), scenario=cfg.scenario, seed=cfg.seed, objects=objects, decisions=records,
@@ -254,9 +254,9 @@ def _fit_height(img: np.ndarray, height: int) -> np.ndarray:
     return cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)
 
 
-def _even(frame: np.ndarray) -> np.ndarray:
+def even_frame(frame: np.ndarray) -> np.ndarray:
     """Crop to even sides (H.264 with yuv420p needs them)."""
     return frame[: frame.shape[0] // 2 * 2, : frame.shape[1] // 2 * 2]
 
 
-__all__ = ["ClutterVideoConfig", "colorize", "decision_panels", "decisions_strip", "describe", "draw_action", "run"]
+__all__ = ["ClutterVideoConfig", "colorize", "even_frame", "label", "decision_panels", "decisions_strip", "describe", "draw_action", "run"]
