@@ -18,15 +18,9 @@ def _demo(args) -> None:
 
 
 def _quickstart(args) -> None:
-    import dataclasses
+    from maniskill_pnp.quickstart import report
 
-    from maniskill_pnp.quickstart import QuickstartConfig, report, run
-
-    try:
-        summary = run(QuickstartConfig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(QuickstartConfig)}))
-    except (FileNotFoundError, ValueError) as e:
-        raise SystemExit(f"quickstart: {e}") from e
-    print(report(summary))
+    print(report(_run_job(args, "maniskill_pnp.quickstart", "QuickstartConfig", "quickstart")))
 
 
 def _export_clutter(args) -> None:
@@ -168,15 +162,22 @@ def _train_clutter(args) -> None:
     print(json.dumps(summary, indent=2))
 
 
-def _eval_clutter(args) -> None:
+def _run_job(args, module: str, config: str, command: str) -> dict:
+    """Build the dataclass ``config`` of ``module`` from the parsed options and call the module's ``run``; a missing
+    file or a bad value ends the command with one line naming the problem."""
     import dataclasses
+    import importlib
 
-    from maniskill_pnp.agents.clutter_eval import ClutterEvalConfig, run
-
+    mod = importlib.import_module(module)
+    cls = getattr(mod, config)
     try:
-        summary = run(ClutterEvalConfig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(ClutterEvalConfig)}))
+        return mod.run(cls(**{f.name: getattr(args, f.name) for f in dataclasses.fields(cls)}))
     except (FileNotFoundError, ValueError) as e:
-        raise SystemExit(f"eval-clutter: {e}") from e
+        raise SystemExit(f"{command}: {e}") from e
+
+
+def _eval_clutter(args) -> None:
+    summary = _run_job(args, "maniskill_pnp.agents.clutter_eval", "ClutterEvalConfig", "eval-clutter")
     print(json.dumps(summary["metrics"], indent=2))
     print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
 
@@ -233,28 +234,14 @@ def _add_config_args(parser: argparse.ArgumentParser, cls) -> None:
 
 
 def _record_conveyor(args) -> None:
-    import dataclasses
-
-    from maniskill_pnp.agents.conveyor_video import ConveyorVideoConfig, run
-
-    try:
-        summary = run(ConveyorVideoConfig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(ConveyorVideoConfig)}))
-    except (FileNotFoundError, ValueError) as e:
-        raise SystemExit(f"record-conveyor: {e}") from e
+    summary = _run_job(args, "maniskill_pnp.agents.conveyor_video", "ConveyorVideoConfig", "record-conveyor")
     steps = ", ".join(f"{d['phase']} -> {d['action']}" for d in summary["decisions"])
     print(f"{steps}; placed: {summary['placed']}; {summary['frames']} frames")
     print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
 
 
 def _record_clutter(args) -> None:
-    import dataclasses
-
-    from maniskill_pnp.agents.clutter_video import ClutterVideoConfig, run
-
-    try:
-        summary = run(ClutterVideoConfig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(ClutterVideoConfig)}))
-    except (FileNotFoundError, ValueError) as e:
-        raise SystemExit(f"record-clutter: {e}") from e
+    summary = _run_job(args, "maniskill_pnp.agents.clutter_video", "ClutterVideoConfig", "record-clutter")
     print(f"{len(summary['decisions'])} decisions, {summary['placed']} of {summary['objects']} objects placed, "
           f"{summary['frames']} frames")
     print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
