@@ -16,7 +16,7 @@ from maniskill_pnp.quickstart import BUNDLED_AGENTS, QuickstartConfig, report, r
 
 def test_quickstart_trains_evaluates_and_films(tiny_clutter_run, tmp_path):
     out = tmp_path / "quick"
-    summary = run(QuickstartConfig(out=out, conveyor_steps=20, eval_iterations=1, agent=str(tiny_clutter_run), max_decisions=1))
+    summary = run(QuickstartConfig(out=out, conveyor_steps=21, eval_iterations=1, agent=str(tiny_clutter_run), max_decisions=1))
 
     conveyor = summary["conveyor"]
     assert (out / "conveyor" / "qlearning_normal_seed0" / "qtable.pt").is_file()

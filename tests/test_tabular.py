@@ -156,3 +156,13 @@ def test_qtable_file_errors_name_the_file_and_the_problem(tmp_path):
     save_qtable(QTable(3, 2), ConveyorConfig(), path, spec=spec)
     with pytest.raises(ValueError, match=r"shape \(3, 2\)"):
         load_qtable(path)
+
+
+def test_state_encoding_takes_the_task_infos_unknown_as_not_sensed():
+    """The task's info says "unknown" (and last_coord -1) where the spec's state encoding means None."""
+    from maniskill_pnp.tasks.conveyor_config import UNKNOWN
+
+    spec = ConveyorSpec()
+    assert spec.encode_state("pre_pick", UNKNOWN, UNKNOWN, -1) == spec.encode_state("pre_pick", None, None, None)
+    s = spec.encode_state("grasp", "fast", UNKNOWN, 4)
+    assert spec.decode_state(s) == dict(phase="grasp", speed="fast", alignment=None, last=4)

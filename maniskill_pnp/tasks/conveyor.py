@@ -31,14 +31,11 @@ from maniskill_pnp.planning.primitives import MotionPrimitives, PrimitiveResult,
 from maniskill_pnp.tasks.bin import build_bin
 from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_action, register_primitive_env
 from maniskill_pnp.tasks.conveyor_config import (
-    ALIGNMENTS, OBJECT_KINDS, REWARD_SCHEMES, SPEEDS, ConveyorSpec,
+    ALIGNMENTS, OBJECT_KINDS, REWARD_SCHEMES, SPEEDS, UNKNOWN, ConveyorSpec,
 )
 
 ROBOT_BASE = (-0.615, 0.0, 0.0)
 GRAVITY = 9.81
-#: What ``info`` says for a quantity not sensed yet (ManiSkill's numpy wrappers cannot carry None).
-UNKNOWN = "unknown"
-
 #: Procedural objects: two sizes per kind (half extents / radius and half height, m); ≤ 6 cm across the jaws.
 OBJECT_VARIANTS = {
     "cuboid": ({"half_size": (0.02, 0.02, 0.02)}, {"half_size": (0.015, 0.022, 0.025)}),

@@ -17,6 +17,9 @@ import numpy as np
 from maniskill_pnp.tasks.bin import BinSpec
 
 PHASES = ("initial", "pre_pick", "grasp", "done")
+#: What the task's ``info`` says for a speed or alignment not sensed yet (ManiSkill's numpy wrappers cannot carry
+#: None; ``encode_state`` takes it as None).
+UNKNOWN = "unknown"
 ALIGNMENTS = ("left", "center", "right")
 SPEEDS = ("slow", "medium", "fast")
 OBJECT_KINDS = ("cuboid", "cylinder", "sphere")
@@ -127,11 +130,12 @@ class ConveyorSpec:
         return len(PHASES) * (len(SPEEDS) + 1) * (len(ALIGNMENTS) + 1) * (self.action_n + 1)
 
     def encode_state(self, phase: str, speed: str | None, alignment: str | None, last: int | None) -> int:
-        """One state id from (phase, sensed speed, sensed alignment, last chosen coordinate); None = unknown."""
+        """One state id from (phase, sensed speed, sensed alignment, last chosen coordinate); None (or the task
+        info's :data:`UNKNOWN`, and -1 for ``last``) = not known yet."""
         p = PHASES.index(phase)
-        s = 0 if speed is None else SPEEDS.index(speed) + 1
-        a = 0 if alignment is None else ALIGNMENTS.index(alignment) + 1
-        c = 0 if last is None else int(last) + 1
+        s = 0 if speed in (None, UNKNOWN) else SPEEDS.index(speed) + 1
+        a = 0 if alignment in (None, UNKNOWN) else ALIGNMENTS.index(alignment) + 1
+        c = 0 if last is None or int(last) < 0 else int(last) + 1
         return ((p * (len(SPEEDS) + 1) + s) * (len(ALIGNMENTS) + 1) + a) * (self.action_n + 1) + c
 
     def decode_state(self, state: int) -> dict:
