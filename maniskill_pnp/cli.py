@@ -24,11 +24,10 @@ def _quickstart(args) -> None:
 
 
 def _export_clutter(args) -> None:
-    from maniskill_pnp.agents.clutter_recipe import export_weights
+    from maniskill_pnp.agents.clutter_recipe import checkpoint_file, export_weights
 
     try:
-        path = export_weights(args.checkpoint / "checkpoint.pt" if args.checkpoint.is_dir() else args.checkpoint, args.out,
-                              half=args.half)
+        path = export_weights(checkpoint_file(args.checkpoint), args.out, half=args.half)
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"export-clutter: {e}") from e
     print(f"agent: {path} ({path.stat().st_size / 2**20:.1f} MiB)")
@@ -196,15 +195,16 @@ def _plot_clutter(args) -> None:
     print(f"curves: {args.out}")
 
 
-def _add_checkpoint_args(parser: argparse.ArgumentParser, config_cls) -> None:
-    """The checkpoint argument and one option per other field of ``config_cls`` (ClutterEvalConfig or
-    ClutterVideoConfig); help = field docstring."""
+def _add_config_args(parser: argparse.ArgumentParser, config_cls) -> None:
+    """One option per field of the config dataclass ``config_cls`` (a ``checkpoint`` field becomes the positional
+    argument); help = field docstring. Used by the commands that _run_job runs."""
     import dataclasses
 
     from maniskill_pnp.agents.run_io import field_docs
 
     docs = field_docs(config_cls)
-    parser.add_argument("checkpoint", type=Path, help=docs["checkpoint"])
+    if any(f.name == "checkpoint" for f in dataclasses.fields(config_cls)):
+        parser.add_argument("checkpoint", type=Path, help=docs["checkpoint"])
     for f in dataclasses.fields(config_cls):
         if f.name == "checkpoint":
             continue
@@ -218,19 +218,6 @@ def _add_checkpoint_args(parser: argparse.ArgumentParser, config_cls) -> None:
             optional = str if "str" in str(f.type) else int  # a None default: the annotation says the type
             kind = Path if f.name == "out" else optional if f.default is None else type(f.default)
             parser.add_argument(flag, type=kind, default=f.default, help=help_text)
-
-
-def _add_config_args(parser: argparse.ArgumentParser, cls) -> None:
-    """One option per field of the config dataclass ``cls`` (all fields with plain defaults); help = field docstring."""
-    import dataclasses
-
-    from maniskill_pnp.agents.run_io import field_docs
-
-    docs = field_docs(cls)
-    for f in dataclasses.fields(cls):
-        kind = Path if f.name == "out" else type(f.default)
-        parser.add_argument("--" + f.name.replace("_", "-"), type=kind, default=f.default,
-                            help=docs[f.name].replace("%", "%%") + " (default: %(default)s)")
 
 
 def _record_conveyor(args) -> None:
@@ -369,19 +356,19 @@ def build_parser() -> argparse.ArgumentParser:
     from maniskill_pnp.agents.clutter_eval import ClutterEvalConfig
     from maniskill_pnp.agents.clutter_video import ClutterVideoConfig
 
-    _add_checkpoint_args(evc, ClutterEvalConfig)
+    _add_config_args(evc, ClutterEvalConfig)
     evc.set_defaults(func=_eval_clutter)
 
     rec = sub.add_parser("record-clutter", help="film one greedy episode of a clutter DQN checkpoint: MP4 of the arm's "
                          "motion beside each decision, and a strip of heightmap -> Q map -> action per decision")
-    _add_checkpoint_args(rec, ClutterVideoConfig)
+    _add_config_args(rec, ClutterVideoConfig)
     rec.set_defaults(func=_record_clutter)
 
     from maniskill_pnp.agents.conveyor_video import ConveyorVideoConfig
 
     recc = sub.add_parser("record-conveyor", help="film one greedy ConveyorProximity-v1 episode of a saved Q-table: the belt, "
                           "the sensed state and the planned pre-pick, grasp and place, as MP4")
-    _add_checkpoint_args(recc, ConveyorVideoConfig)
+    _add_config_args(recc, ConveyorVideoConfig)
     recc.set_defaults(func=_record_conveyor)
 
     export = sub.add_parser("export-clutter", help="a shareable agent from a clutter DQN checkpoint: config and network "

@@ -45,7 +45,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from maniskill_pnp.agents.clutter_recipe import ClutterConfig, load_checkpoint, make_action_mask, make_env, make_model
+from maniskill_pnp.agents.clutter_recipe import ClutterConfig, checkpoint_file, load_checkpoint, make_action_mask, make_env, make_model
 from maniskill_pnp.agents.pixel_fcn import rotation_angles
 from maniskill_pnp.agents.pixel_policy import GreedyPixelActor
 from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
@@ -63,6 +63,11 @@ EPISODE_COLUMNS = ("scenario", "seed", "objects", "actions", "grasp_attempts", "
                    "max_failure_run", "success_rate", "grasp_success")
 #: Columns of the per-scenario table (Table IX).
 SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS)
+
+
+def is_scenario(name: str) -> bool:
+    """Whether ``name`` is a scenario: one of :data:`SCENARIOS` or a positive object count."""
+    return name in SCENARIOS or (name.isdigit() and int(name) > 0)
 
 
 @dataclass(frozen=True)
@@ -94,7 +99,7 @@ class ClutterEvalConfig:
         object.__setattr__(self, "scenarios", tuple(str(x) for x in self.scenarios))
         if not self.scenarios:
             raise ValueError("scenarios must name at least one scenario (e.g. 'train' or 'medium')")
-        bad = [x for x in self.scenarios if not (x in SCENARIOS or (x.isdigit() and int(x) > 0))]
+        bad = [x for x in self.scenarios if not is_scenario(x)]
         if bad:
             raise ValueError(f"unknown scenarios {bad}; valid: a positive object count or one of {list(SCENARIOS)}")
         if self.episodes < 1:
@@ -114,7 +119,7 @@ class ClutterEvalConfig:
     @property
     def checkpoint_path(self) -> Path:
         """The checkpoint file (``checkpoint.pt`` inside ``checkpoint`` when that is a folder)."""
-        return self.checkpoint / "checkpoint.pt" if self.checkpoint.is_dir() else self.checkpoint
+        return checkpoint_file(self.checkpoint)
 
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
@@ -360,5 +365,5 @@ def run(cfg: ClutterEvalConfig) -> dict:
     return summary
 
 
-__all__ = ["ClutterEvalConfig", "MAX_FAILURE_RUN", "METRICS", "SCENARIOS", "load_policy", "plot_q_heatmaps", "run",
+__all__ = ["ClutterEvalConfig", "MAX_FAILURE_RUN", "METRICS", "SCENARIOS", "is_scenario", "load_policy", "plot_q_heatmaps", "run",
            "run_episode", "scenario_options", "summarize", "write_tables"]

@@ -403,6 +403,12 @@ def save_checkpoint(path: Path, *, cfg, model, loss, optimizer, egreedy, counter
     atomic_write_bytes(path, lambda f: torch.save(payload, f))
 
 
+def checkpoint_file(path: Path) -> Path:
+    """The checkpoint file of ``path``: ``checkpoint.pt`` inside it when it is a run folder, else ``path`` itself."""
+    path = Path(path)
+    return path / "checkpoint.pt" if path.is_dir() else path
+
+
 def load_checkpoint(path: Path) -> dict:
     """The payload of :func:`save_checkpoint`; ValueError naming the file if it is not one."""
     path = Path(path)
@@ -588,6 +594,6 @@ def main(cfg: ClutterConfig) -> dict:
 
 
 __all__ = [
-    "ACTION_COLUMNS", "ClutterConfig", "export_weights", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model",
+    "ACTION_COLUMNS", "ClutterConfig", "checkpoint_file", "export_weights", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model",
     "save_checkpoint", "to_transitions",
 ]

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from maniskill_pnp.agents.clutter_eval import SCENARIOS, decide, load_policy, scenario_options
-from maniskill_pnp.runtime import resolve_device
-from maniskill_pnp.agents.clutter_recipe import make_env
+from maniskill_pnp.agents.clutter_eval import SCENARIOS, decide, is_scenario, load_policy, scenario_options
+from maniskill_pnp.agents.clutter_recipe import checkpoint_file, make_env
 from maniskill_pnp.agents.run_io import write_json
+from maniskill_pnp.runtime import resolve_device
 
 #: Side (px) of each heightmap / Q-map panel in the video and the strip.
 PANEL = 256
@@ -60,7 +60,7 @@ class ClutterVideoConfig:
         object.__setattr__(self, "checkpoint", Path(self.checkpoint))
         object.__setattr__(self, "out", Path(self.out))
         object.__setattr__(self, "scenario", str(self.scenario))
-        if not (self.scenario in SCENARIOS or (self.scenario.isdigit() and int(self.scenario) > 0)):
+        if not is_scenario(self.scenario):
             raise ValueError(f"unknown scenario {self.scenario!r}; valid: a positive object count or one of {list(SCENARIOS)}")
         for name in ("max_steps", "frame_every", "fps"):
             if getattr(self, name) < 1:
@@ -70,7 +70,7 @@ class ClutterVideoConfig:
 
     @property
     def checkpoint_path(self) -> Path:
-        return self.checkpoint / "checkpoint.pt" if self.checkpoint.is_dir() else self.checkpoint
+        return checkpoint_file(self.checkpoint)
 
 
 # ----------------------------------------------------------------------------- drawing
@@ -216,10 +216,10 @@ def run(cfg: ClutterVideoConfig) -> dict:
             action, maps = decide(actor, obs, device)
             decision = describe(env, action, maps.numpy(), obs, primitives, len(decisions))
             panels = decision_panels(decision, size)
-            scene_h = env.render()[0].shape[0]
+            scene = env.render()[0].cpu().numpy()
             side = np.concatenate([panels[3], panels[2]], axis=0)  # action on the heightmap above its Q map
-            current[:] = [_fit_height(side, scene_h)]
-            frames.append(np.concatenate([env.render()[0].cpu().numpy(), current[0]], axis=1))
+            current[:] = [_fit_height(side, scene.shape[0])]
+            frames.append(np.concatenate([scene, current[0]], axis=1))
             obs, reward, terminated, truncated, info = env.step(action)
             decision["outcome_lines"] = outcome_lines(info, float(reward.item()))
             decisions.append(decision)

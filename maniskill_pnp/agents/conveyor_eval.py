@@ -29,7 +29,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm import tqdm
 
-from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, load_qtable, make_env
+from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, load_qtable, make_env, qtable_file
 from maniskill_pnp.agents.run_io import atomic_write_bytes
 from maniskill_pnp.agents.tabular import QTable, make_qtable_policy
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, SPEEDS, ConveyorSpec
@@ -215,11 +215,6 @@ def plot_curves(run_dirs: list[Path], out: Path) -> list[Path]:
 
 
 # ----------------------------------------------------------------------------- main
-def _checkpoint_path(p: Path) -> Path:
-    p = Path(p)
-    return p / "qtable.pt" if p.is_dir() else p
-
-
 def run(cfg: EvalConfig) -> dict:
     """Evaluate every checkpoint; write ``test_cases.md/.csv``, ``categories_*.md`` / ``categories.csv``,
     ``eval.json`` and the learning-curve PNGs into ``cfg.out``; print the test-case table."""
@@ -227,8 +222,8 @@ def run(cfg: EvalConfig) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     agents = []
     for p in cfg.checkpoints:  # load all first: a bad file fails before any episode runs
-        table, train_cfg, _ = load_qtable(_checkpoint_path(p))
-        agents.append((agent_label(train_cfg), table, train_cfg, _checkpoint_path(p)))
+        table, train_cfg, _ = load_qtable(qtable_file(p))
+        agents.append((agent_label(train_cfg), table, train_cfg, qtable_file(p)))
 
     rng = np.random.default_rng(cfg.seed)
     cases = {c: test_case_draws(c, cfg.iterations, rng) for c in TEST_CASES}

@@ -175,6 +175,12 @@ def save_qtable(table: QTable, cfg: ConveyorConfig, path: Path, *, spec: Conveyo
     atomic_write_bytes(path, lambda f: torch.save(payload, f))
 
 
+def qtable_file(path: Path) -> Path:
+    """The Q-table file of ``path``: ``qtable.pt`` inside it when it is a run folder, else ``path`` itself."""
+    path = Path(path)
+    return path / "qtable.pt" if path.is_dir() else path
+
+
 def load_qtable(path: Path, *, spec: ConveyorSpec | None = None) -> tuple[QTable, ConveyorConfig, dict]:
     """Load a table saved by :func:`save_qtable`; ValueError naming the file and the problem if it is unusable."""
     path = Path(path)
@@ -323,5 +329,5 @@ def main(cfg: ConveyorConfig) -> dict:
 
 
 __all__ = [
-    "ConveyorConfig", "NextActionPairing", "load_qtable", "main", "make_env", "save_qtable", "valid_action_table",
+    "ConveyorConfig", "NextActionPairing", "load_qtable", "qtable_file", "main", "make_env", "save_qtable", "valid_action_table",
 ]

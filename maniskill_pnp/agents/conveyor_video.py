@@ -18,7 +18,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from maniskill_pnp.agents.clutter_video import even_frame, label
-from maniskill_pnp.agents.conveyor_recipe import load_qtable, make_env
+from maniskill_pnp.agents.conveyor_recipe import load_qtable, make_env, qtable_file
 from maniskill_pnp.agents.run_io import write_json
 from maniskill_pnp.agents.tabular import make_qtable_policy
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, SPEEDS
@@ -58,7 +58,7 @@ class ConveyorVideoConfig:
 
     @property
     def checkpoint_path(self) -> Path:
-        return self.checkpoint / "qtable.pt" if self.checkpoint.is_dir() else self.checkpoint
+        return qtable_file(self.checkpoint)
 
 
 def run(cfg: ConveyorVideoConfig) -> dict:
