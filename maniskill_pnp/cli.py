@@ -52,10 +52,39 @@ def _bench(args) -> None:
         from maniskill_pnp.bench.soak import SoakBenchConfig, run as run_soak
 
         try:
-            cfg = SoakBenchConfig(actions=args.actions, warmup=200 if args.warmup is None else args.warmup, out=args.out / "soak.json")
+            cfg = SoakBenchConfig(actions=_given(args.actions, 2000), warmup=200 if args.warmup is None else args.warmup,
+                                  out=args.out / "soak.json")
         except ValueError as e:
             raise SystemExit(f"bench soak: {e}") from e
         run_soak(cfg)
+    else:
+        _bench_scale(args)
+
+
+def _given(value, default):
+    """``value`` unless the option was left out (None)."""
+    return default if value is None else value
+
+
+def _bench_scale(args) -> None:
+    """``bench env-overhead``, ``collection`` and ``decision-breakdown`` (maniskill_pnp.bench.scale)."""
+    from maniskill_pnp.bench import scale
+
+    try:
+        if args.which == "env-overhead":
+            cfg = scale.EnvOverheadBenchConfig(actions=_given(args.actions, 8), out=args.out / "env_overhead.json")
+            run = scale.run_env_overhead
+        elif args.which == "collection":
+            cfg = scale.CollectionBenchConfig(task=args.task, workers=tuple(args.workers), frames=args.frames,
+                                              out=args.out / f"collection_{args.task}.json")
+            run = scale.run_collection
+        else:
+            cfg = scale.DecisionBreakdownBenchConfig(preset=args.preset, decisions=_given(args.actions, 10),
+                                                     out=args.out / "decision_breakdown.json")
+            run = scale.run_decision_breakdown
+    except ValueError as e:
+        raise SystemExit(f"bench {args.which}: {e}") from e
+    run(cfg)
 
 
 def _bench_pixel_dqn(args) -> None:
@@ -314,19 +343,31 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="run a benchmark; prints numbers and writes JSON")
     bench.add_argument(
-        "which", choices=["primitives", "clutter-oracle", "conveyor", "pixel-memory", "decision-cost", "soak"],
+        "which", choices=["primitives", "clutter-oracle", "conveyor", "pixel-memory", "decision-cost", "soak",
+                          "env-overhead", "collection", "decision-breakdown"],
         help="primitives: pick-and-place success, planning and wall time; "
         "clutter-oracle: ClutterGrasp-v1 cleared by the scripted heightmap oracle (10 objects, --episodes scenes); "
         "conveyor: train Q-learning and SARSA with the default config, then the random test cases; "
         "pixel-memory: peak memory and time of one training step of a pixel Q network, DenseNet memory_efficient "
         "on vs off, each in a fresh process; decision-cost: time of one greedy decision / time of its bare trunk "
         "forwards (target <= 1.3); both sized by the options below; soak: --actions random primitive actions on "
-        "ClutterGraspSlide-v1, memory growth after --warmup and leaked scene objects across resets",
+        "ClutterGraspSlide-v1, memory growth after --warmup and leaked scene objects across resets; "
+        "env-overhead: sim steps/s of ClutterGrasp-v1's primitives (--actions of them) / a bare PickCube-v1; "
+        "collection: transitions/s of --task with each of --workers env processes; decision-breakdown: render, "
+        "heightmap, network, planning and execution time of --actions greedy decisions of --preset",
     )
     bench.add_argument("--episodes", type=int, default=20, help="seeded episodes (primitives) or scenes (clutter-oracle) (default: %(default)s)")
     bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="folder for the JSON report (default: %(default)s)")
     bench.add_argument("--steps", type=int, default=3000, help="conveyor: training steps of each agent (default: %(default)s)")
-    bench.add_argument("--actions", type=int, default=2000, help="soak: primitive actions in all (default: %(default)s)")
+    bench.add_argument("--actions", type=int, default=None,
+                       help="soak: primitive actions in all (default: 2000); env-overhead: primitives timed (default: 8); "
+                       "decision-breakdown: decisions timed (default: 10)")
+    bench.add_argument("--task", choices=["conveyor", "clutter", "clutter-slide"], default="conveyor",
+                       help="collection: the task collected from (default: %(default)s)")
+    bench.add_argument("--workers", type=int, nargs="+", default=[1, 2],
+                       help="collection: worker counts measured, ratios against the first (default: 1 2)")
+    bench.add_argument("--frames", type=int, default=24, help="collection: timed transitions per worker count (default: %(default)s)")
+    bench.add_argument("--preset", default="gs-cpu-small", help="decision-breakdown: clutter recipe preset (default: %(default)s)")
     bench.add_argument("--iterations", type=int, default=50, help="conveyor: iterations per random test case (default: %(default)s)")
     _add_pixel_bench_args(bench)
     bench.set_defaults(func=_bench)

@@ -12,12 +12,17 @@ CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
 
 
 def pytest_collection_modifyitems(config, items):
-    if torch.cuda.is_available():
-        return
-    skip = pytest.mark.skip(reason="needs an NVIDIA GPU")
+    import importlib.util
+
+    skips = {}
+    if not torch.cuda.is_available():
+        skips["gpu"] = pytest.mark.skip(reason="needs an NVIDIA GPU")
+    if importlib.util.find_spec("ray") is None:
+        skips["ray"] = pytest.mark.skip(reason="needs the ray extra (pip install 'maniskill_pnp[ray]')")
     for item in items:
-        if "gpu" in item.keywords:
-            item.add_marker(skip)
+        for marker, skip in skips.items():
+            if marker in item.keywords:
+                item.add_marker(skip)
 
 
 @pytest.fixture(scope="session")

@@ -181,6 +181,11 @@ def jobs(tmp_path_factory):
     j.chain(("bad eval-clutter checkpoint", [*SCRIPT, "eval-clutter", "/nonexistent/run", "--out", "never"]))
     j.chain(("bad plot-clutter run", [*SCRIPT, "plot-clutter", "empty_run", "--out", "never.png"]))
     j.chain(("bad train-conveyor alpha", [*SCRIPT, "train-conveyor", "--alpha", "2", "--out", "never"]))
+    j.chain(("bench env-overhead", [*MODULE, "bench", "env-overhead", "--actions", "2", "--out", "bench"]))
+    j.chain(("bench collection", [*MODULE, "bench", "collection", "--task", "conveyor", "--workers", "1", "2",
+                                  "--frames", "4", "--out", "bench"]))
+    j.chain(("bench decision-breakdown", [*MODULE, "bench", "decision-breakdown", "--actions", "2", "--out", "bench"]))
+    j.chain(("bad collector", [*SCRIPT, "train-conveyor", "--workers", "2", "--collector", "direct", "--out", "never"]))
     j.chain(("bench decision-cost", [*MODULE, "bench", "decision-cost", "--backbone", "small", "--rotations", "2",
                                      "--heightmap-size", "32", "--num-primitives", "1", "--warmup", "1", "--repeats", "1",
                                      "--threads", "1", "--out", "bench"]))
@@ -318,6 +323,41 @@ def test_bench_decision_cost(jobs):
     assert "ratio" in ran.stdout
 
 
+def test_bench_env_overhead(jobs):
+    ran = jobs["bench env-overhead"].ok()
+    results = _report(jobs.out / "bench" / "env_overhead.json", "env-overhead",
+                      ("clutter_grasp", "pickcube", "ratio_execution_vs_env_step", "ratio_execution_vs_control_step",
+                       "ratio_whole_step_vs_env_step"))
+    ours, bare = results["clutter_grasp"], results["pickcube"]
+    assert ours["actions"] == 2 and ours["sim_steps"] > 0 and ours["motion"] >= ours["planning"] > 0
+    assert bare["env_step_sim_steps_per_s"] > 0 and bare["control_step_sim_steps_per_s"] > 0
+    assert results["ratio_execution_vs_env_step"] == pytest.approx(
+        ours["execution_sim_steps_per_s"] / bare["env_step_sim_steps_per_s"])
+    assert "ratio ours executing / bare env.step" in ran.stdout
+
+
+def test_bench_collection(jobs):
+    ran = jobs["bench collection"].ok()
+    results = _report(jobs.out / "bench" / "collection_conveyor.json", "collection", ("task", "rows"))
+    rows = results["rows"]
+    assert results["task"] == "conveyor" and [r["workers"] for r in rows] == [1, 2]
+    assert all(r["frames"] >= 4 and r["transitions_per_s"] > 0 for r in rows) and rows[0]["ratio_vs_first"] == 1.0
+    assert "2 worker(s)" in ran.stdout
+
+
+def test_bench_decision_breakdown(jobs):
+    ran = jobs["bench decision-breakdown"].ok()
+    results = _report(jobs.out / "bench" / "decision_breakdown.json", "decision-breakdown",
+                      ("decisions", "mean_s", "median_s", "decisions_per_s", "table"))
+    assert len(results["decisions"]) == 2 and results["decisions_per_s"] > 0
+    for row in results["decisions"]:
+        assert set(row) == {"render", "heightmap", "network", "planning", "execution", "other"}
+        assert min(row.values()) >= 0 and row["render"] > 0 and row["network"] > 0 and row["execution"] > 0
+    lines = _markdown_table(jobs.out / "bench" / "decision_breakdown.md", ("part", "median ms", "mean ms", "share"), 7)
+    assert lines[-1].startswith("| total |") and lines[-1].endswith("| 100.0% |")
+    assert "| network |" in ran.stdout
+
+
 # ----------------------------------------------------------------------------- conveyor agents
 def test_train_conveyor(jobs):
     ran = jobs["train-conveyor"].ok()
@@ -428,7 +468,8 @@ def _flags(*names: str) -> list[str]:
 
 BENCH_OPTIONS = ["--episodes", "--out", "--iterations", "--backbone", "--rotations", "--heightmap-size",
                  "--num-primitives", "--repeats", "--warmup", "--device", "--threads", "--max-rss-gb",
-                 "--steps", "--actions", "primitives", "clutter-oracle", "conveyor", "pixel-memory", "decision-cost", "soak"]
+                 "--steps", "--actions", "--task", "--workers", "--frames", "--preset", "primitives", "clutter-oracle",
+                 "conveyor", "pixel-memory", "decision-cost", "soak", "env-overhead", "collection", "decision-breakdown"]
 HELP_OPTIONS = {
     "demo": ["--out", "--seed"],
     **{command: BENCH_OPTIONS for command in HELP_COMMANDS if command.startswith("bench")},
@@ -461,6 +502,7 @@ def test_help_exits_0_and_names_every_option(jobs, command):
     ("bad eval-clutter checkpoint", "eval-clutter: checkpoint /nonexistent/run does not exist"),
     ("bad plot-clutter run", "plot-clutter: empty_run/actions.csv does not exist"),
     ("bad train-conveyor alpha", "train-conveyor: alpha must be in (0, 1], got 2.0"),
+    ("bad collector", "train-conveyor: the direct collector runs one env in this process"),
 ])
 def test_bad_input_is_one_clear_line(jobs, name, message):
     ran = jobs[name]

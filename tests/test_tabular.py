@@ -136,9 +136,13 @@ def test_sarsa_pairing_uses_the_action_taken_next_across_batch_boundaries():
     assert ready["observation"].tolist() == [0] and ready["next_action"].tolist() == [3]
     ready = pairing(torch.cat([_frame(7, 2, 9, True), _frame(0, 0, 5, False, traj=1)]))
     assert ready["observation"].tolist() == [5, 7] and ready["next_action"].tolist()[0] == 2
-    assert pairing.pending is not None and pairing.pending["observation"].tolist() == [0]
-    with pytest.raises(RuntimeError, match="trajectory"):
-        pairing(_frame(5, 1, 7, False, traj=2))
+    assert list(pairing.pending) == [(0, 1)] and pairing.pending[(0, 1)]["observation"].tolist() == [0]
+    # another worker's trajectory interleaves without disturbing the held-back transition of trajectory 1
+    ready = pairing(torch.cat([_frame(3, 1, 4, False, traj=2), _frame(5, 1, 6, False, traj=1)]))
+    assert ready["observation"].tolist() == [0] and ready["next_action"].tolist() == [1]
+    assert sorted(pairing.pending) == [(0, 1), (0, 2)] and pairing.pending[(0, 2)]["observation"].tolist() == [3]
+    with pytest.raises(RuntimeError, match="next state"):  # trajectory 2 went 3 -> 4, so it cannot go on from 9
+        pairing(_frame(9, 1, 7, False, traj=2))
 
 
 def test_qtable_file_errors_name_the_file_and_the_problem(tmp_path):

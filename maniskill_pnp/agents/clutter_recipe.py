@@ -32,17 +32,17 @@ import random
 import shutil
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.collectors import Collector
-from torchrl.envs.utils import ExplorationType
 from torchrl.objectives import HardUpdate
 from tqdm import tqdm
 
+from maniskill_pnp.agents.collection import check_collection, make_collector, resolve_backend, streams, sync_weights, worker_seeds
 from maniskill_pnp.agents.run_io import (
     RunConfig, atomic_write_bytes, check_logger, make_logger, require_logger, write_json,
 )
@@ -144,6 +144,14 @@ class ClutterConfig(RunConfig):
     """Steps over which ε decays linearly from ``eps_start`` to ``eps_end``."""
     seed: int = 0
     """Seed of the network initialisation, the episodes, the planner and the exploration."""
+    workers: int = 1
+    """Env workers collecting in parallel (processes, or Ray actors); each has its own seed, recorded in
+    train_summary.json."""
+    collector: str = "auto"
+    """Collector backend: "auto" (direct for one worker, process for more), "direct", "process" or "ray" (needs the
+    ray extra, ``pip install maniskill_pnp[ray]``; joins the cluster named by RAY_ADDRESS)."""
+    sync: bool = True
+    """A multi-worker batch waits for every worker (False: each worker's frames as soon as they are ready)."""
     checkpoint_interval: int = 50
     """Write the checkpoint atomically every this many steps (and at the end)."""
     log_interval: int = 10
@@ -170,6 +178,7 @@ class ClutterConfig(RunConfig):
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; valid: {list(LOSSES)}")
         check_logger(self.logger)
+        check_collection(self.workers, self.collector, self.sync)
         if self.task == "grasp" and self.reward_scheme != "default":
             raise ValueError(f"reward_scheme {self.reward_scheme!r} needs task 'grasp_slide' (ClutterGrasp-v1 has one scheme)")
         if self.loss == "bce" and (self.double_dqn or self.delay_value):
@@ -250,6 +259,12 @@ def make_env(cfg: ClutterConfig, **task_kwargs):
     return make_torchrl_env(TASKS[cfg.task]["env_id"], sim_backend="physx_cpu", render_backend="cpu", **options)
 
 
+def make_worker_env(cfg: ClutterConfig, seed: int):
+    """The env of one collector worker: the config's task with its planner seeded by ``seed`` (picklable with
+    ``functools.partial``)."""
+    return make_env(replace(cfg, seed=seed))
+
+
 def make_action_mask(cfg: ClutterConfig, enabled: tuple[str, ...] | None = None) -> HeightmapActionMask | None:
     """The action mask of the config: material under grasps / near slides with ``mask_empty``, and only the
     ``enabled`` primitives (e.g. ``("grasp",)`` for a G&S agent restricted to grasps); None when neither applies."""
@@ -314,13 +329,15 @@ class OutcomeTracker:
         self.placed: deque[bool] = deque(maxlen=window)
         self.last_grasps = 0
         self.step = int(start_step)
-        self._episode = dict(actions=0, placed=0)
+        self._episodes: dict = {}  # stream (worker, trajectory) -> actions and placed objects so far
         self._log = None
         if log_path is not None:
             self._log = _open_action_log(Path(log_path), self.step)
 
-    def add(self, action: torch.Tensor, reward: torch.Tensor, done: torch.Tensor, terminated: torch.Tensor) -> list[dict]:
-        """Record a batch of steps (one env, in order); returns the episodes they finished."""
+    def add(self, action: torch.Tensor, reward: torch.Tensor, done: torch.Tensor, terminated: torch.Tensor,
+            stream=0) -> list[dict]:
+        """Record consecutive steps of one env (in order; ``stream`` names the env's episode when several workers
+        interleave, see :func:`~maniskill_pnp.agents.collection.streams`); returns the episodes they finished."""
         finished, self.last_grasps = [], 0
         for a, r, d, t in zip(action.reshape(-1).tolist(), reward.reshape(-1).tolist(), done.reshape(-1).tolist(),
                               terminated.reshape(-1).tolist()):
@@ -334,12 +351,12 @@ class OutcomeTracker:
             if self._log is not None:
                 self._log.write(f"{self.step},{primitive},{a},{r:.4g},{int(primitive == 0)},"
                                 f"{int(primitive == 0 and r >= self.grasp)},{int(placed)},{int(d)}\n")
-            self._episode["actions"] += 1
-            self._episode["placed"] += int(placed)
+            e = self._episodes.setdefault(stream, dict(actions=0, placed=0))
+            e["actions"] += 1
+            e["placed"] += int(placed)
             if d:
-                e = self._episode
                 finished.append(dict(e, success_rate=e["placed"] / e["actions"], completed=bool(t)))
-                self._episode = dict(actions=0, placed=0)
+                del self._episodes[stream]
         if self._log is not None:
             self._log.flush()
         return finished
@@ -436,6 +453,11 @@ def export_weights(checkpoint: Path, dest: Path, half: bool = True) -> Path:
 
 
 # ----------------------------------------------------------------------------- main
+def crossed(step: int, n: int, interval: int) -> bool:
+    """Whether the last ``n`` steps, ending at ``step``, passed a multiple of ``interval``."""
+    return step // interval > (step - n) // interval
+
+
 def main(cfg: ClutterConfig) -> dict:
     """Train one pixelwise DQN grasping agent; returns a summary (run folder, steps, episodes, grasp success)."""
     require_logger(cfg.logger)  # a missing tensorboard extra fails before anything is built
@@ -453,9 +475,12 @@ def main(cfg: ClutterConfig) -> dict:
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json(run_dir / "config.json", cfg.to_json())
 
-    # 1. make the env (a fresh episode seed on resume, so finished episodes are not replayed)
+    # 1. make the env (a fresh episode seed on resume, so finished episodes are not replayed); with several workers
+    #    it only gives the specs and the reward table, and each worker builds its own
     env = make_env(cfg)
-    env.set_seed(cfg.seed + counters["episodes"])
+    env_seed = cfg.seed + counters["episodes"]
+    env.set_seed(env_seed)
+    rewards = env.base_env.rewards
 
     # 2. make the model and its greedy / ε-greedy actors
     model = make_model(cfg)
@@ -496,16 +521,22 @@ def main(cfg: ClutterConfig) -> dict:
         egreedy.load_state_dict(payload["egreedy"])
         _set_rng_state(payload["rng"])
 
-    # 5. make the collector (one grasp per batch, exploration on)
+    # 5. make the collector (one action per worker per batch, exploration on)
     remaining = cfg.steps - counters["steps"]
-    summary = dict(run_dir=str(run_dir), start_step=counters["steps"])
+    backend = resolve_backend(cfg.collector, cfg.workers)
+    summary = dict(run_dir=str(run_dir), start_step=counters["steps"],
+                   collection=dict(backend=backend, workers=cfg.workers, sync=cfg.sync,
+                                   worker_seeds=worker_seeds(env_seed, cfg.workers)))
     if remaining <= 0 or (cfg.episodes and counters["episodes"] >= cfg.episodes):
         env.close()
         return dict(summary, **counters, note="nothing left to train")
     model.eval()  # acting uses BatchNorm's running statistics; each SGD step switches to train mode and back
-    collector = Collector(
-        env, explore, frames_per_batch=1, total_frames=remaining,
-        exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
+    if backend != "direct":
+        env.close()
+        env = None
+    collector = make_collector(
+        partial(make_worker_env, cfg), explore, seed=env_seed, total_frames=remaining, workers=cfg.workers,
+        backend=backend, sync=cfg.sync, env=env,
     )
 
     # 6. make the logger (CSV files or TensorBoard events in the run folder)
@@ -525,22 +556,22 @@ def main(cfg: ClutterConfig) -> dict:
                 shutil.rmtree(old, ignore_errors=True)
 
     # 7. main loop: collect one action, store it, prioritized SGD steps, refresh priorities, log, checkpoint
-    tracker = OutcomeTracker(env.base_env.rewards, cfg.num_rotations * cfg.heightmap_size**2, cfg.success_window,
+    tracker = OutcomeTracker(rewards, cfg.num_rotations * cfg.heightmap_size**2, cfg.success_window,
                              log_path=run_dir / "actions.csv", start_step=counters["steps"])
     last_loss = float("nan")
     t0 = time.perf_counter()
     bar = tqdm(total=cfg.steps, initial=counters["steps"], desc=f"{cfg.task} {cfg.run_name}", unit="action")
     for batch in collector:
-        batch = batch.reshape(-1)
         n = batch.numel()
         egreedy.step(n)
-        transitions = to_transitions(batch)
-        replay.extend(pack_transition(transitions))
-        rewards = transitions.get(("next", "reward"))
-        finished = tracker.add(transitions.get("action"), rewards, transitions.get(("next", "done")),
-                               transitions.get(("next", "terminated")))
+        replay.extend(pack_transition(to_transitions(batch.reshape(-1))))
+        finished = []
+        for stream, frames in streams(batch):  # per worker and episode, in time order
+            nxt = frames.get("next")
+            finished += tracker.add(frames.get("action"), nxt.get("reward"), nxt.get("done"), nxt.get("terminated"),
+                                    stream=stream)
+            counters["grasps"] += tracker.last_grasps
         counters["steps"] += n
-        counters["grasps"] += tracker.last_grasps
         counters["episodes"] += len(finished)
         for episode in finished:
             logger.log_scalar("episode/success_rate", episode["success_rate"], step=counters["episodes"])
@@ -549,7 +580,7 @@ def main(cfg: ClutterConfig) -> dict:
 
         if len(replay) >= cfg.learning_starts:
             model.train()
-            for _ in range(cfg.updates_per_step):
+            for _ in range(cfg.updates_per_step * n):
                 sample = unpack_transition(replay.sample())
                 loss_td = loss(sample)
                 optimizer.zero_grad(set_to_none=True)
@@ -561,6 +592,7 @@ def main(cfg: ClutterConfig) -> dict:
                 counters["updates"] += 1
                 last_loss = loss_td[loss_key].item()
             model.eval()
+        sync_weights(collector)  # the workers act with the new weights and ε
 
         running = tracker.grasp_success
         bar.update(n)
@@ -568,15 +600,15 @@ def main(cfg: ClutterConfig) -> dict:
                         loss=f"{last_loss:.3g}", episodes=counters["episodes"])
         step = counters["steps"]
         done = step >= cfg.steps or (cfg.episodes and counters["episodes"] >= cfg.episodes)
-        if step % cfg.log_interval == 0 or done:
+        if crossed(step, n, cfg.log_interval) or done:
             logger.log_scalar("train/loss", last_loss, step=step)
             logger.log_scalar("train/epsilon", egreedy.eps.item(), step=step)
-            logger.log_scalar("train/reward", float(rewards.mean()), step=step)
+            logger.log_scalar("train/reward", float(batch.get(("next", "reward")).mean()), step=step)
             logger.log_scalar("train/grasp_success", running, step=step)
             logger.log_scalar("train/success_rate", tracker.success_rate, step=step)
             logger.log_scalar("train/episodes", counters["episodes"], step=step)
             logger.log_scalar("time/wall_s", time.perf_counter() - t0, step=step)
-        if step % cfg.checkpoint_interval == 0 or done:
+        if crossed(step, n, cfg.checkpoint_interval) or done:
             checkpoint()
         if done:
             break
@@ -584,7 +616,8 @@ def main(cfg: ClutterConfig) -> dict:
     tracker.close()
     logger.close()  # flushes TensorBoard's buffered events into the file
     collector.shutdown()
-    env.close()
+    if env is not None:
+        env.close()
 
     # 8. summary (the loop wrote the final checkpoint)
     summary.update(counters, running_grasp_success=running, running_success_rate=tracker.success_rate,
@@ -594,6 +627,6 @@ def main(cfg: ClutterConfig) -> dict:
 
 
 __all__ = [
-    "ACTION_COLUMNS", "ClutterConfig", "checkpoint_file", "export_weights", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model",
+    "ACTION_COLUMNS", "ClutterConfig", "checkpoint_file", "export_weights", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model", "make_worker_env",
     "save_checkpoint", "to_transitions",
 ]

@@ -18,17 +18,17 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.collectors import Collector
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.transforms import ActionMask
-from torchrl.envs.utils import ExplorationType
 from tqdm import tqdm
 
+from maniskill_pnp.agents.collection import check_collection, make_collector, resolve_backend, streams, sync_weights, worker_seeds
 from maniskill_pnp.agents.run_io import (
     RunConfig, atomic_write_bytes, check_logger, make_logger, require_logger, write_json,
 )
@@ -75,8 +75,16 @@ class ConveyorConfig(RunConfig):
     """Fix the belt speed class ("slow", "medium", "fast"); None draws it at random each episode."""
     seed: int = 0
     """Seed of the env's episode draws, the planner and the exploration."""
+    workers: int = 1
+    """Env workers collecting in parallel (processes, or Ray actors); each has its own seed, recorded in
+    train_summary.json."""
+    collector: str = "auto"
+    """Collector backend: "auto" (direct for one worker, process for more), "direct", "process" or "ray" (needs the
+    ray extra, ``pip install maniskill_pnp[ray]``; joins the cluster named by RAY_ADDRESS)."""
+    sync: bool = True
+    """A multi-worker batch waits for every worker (False: each worker's frames as soon as they are ready)."""
     frames_per_batch: int = 3
-    """Frames per collector batch (one full episode is 3); TD updates follow each batch."""
+    """Frames per worker in a collector batch (one full episode is 3); TD updates follow each batch."""
     success_window: int = 100
     """Episodes in the running success rate shown on the progress bar and logged."""
     log_interval: int = 30
@@ -94,6 +102,7 @@ class ConveyorConfig(RunConfig):
         if self.reward_scheme not in REWARD_SCHEMES:
             raise ValueError(f"unknown reward_scheme {self.reward_scheme!r}; valid: {list(REWARD_SCHEMES)}")
         check_logger(self.logger)
+        check_collection(self.workers, self.collector, self.sync)
         kinds = (self.object_kinds,) if isinstance(self.object_kinds, str) else tuple(self.object_kinds)
         if not kinds or any(k not in OBJECT_KINDS for k in kinds):
             raise ValueError(f"object_kinds must be a non-empty subset of {list(OBJECT_KINDS)}, got {list(kinds)}")
@@ -131,6 +140,11 @@ def valid_action_table(spec: ConveyorSpec) -> torch.Tensor:
     for s in range(spec.num_states):
         valid[s, : max(1, spec.num_actions[spec.decode_state(s)["phase"]])] = True
     return valid
+
+
+def make_worker_env(cfg: ConveyorConfig, seed: int) -> TransformedEnv:
+    """The env of one collector worker: the config's task with its episodes and planner seeded by ``seed``."""
+    return make_env(replace(cfg, seed=seed))
 
 
 def make_env(cfg: ConveyorConfig, *, reward_scheme: str | None = None, **task_options) -> TransformedEnv:
@@ -182,8 +196,9 @@ def qtable_file(path: Path) -> Path:
 
 
 def load_qtable(path: Path, *, spec: ConveyorSpec | None = None) -> tuple[QTable, ConveyorConfig, dict]:
-    """Load a table saved by :func:`save_qtable`; ValueError naming the file and the problem if it is unusable."""
-    path = Path(path)
+    """Load a table saved by :func:`save_qtable` (``path``: the file or its run folder); ValueError naming the file
+    and the problem if it is unusable."""
+    path = qtable_file(path)
     spec = spec or ConveyorSpec()
     if not path.is_file():
         raise FileNotFoundError(f"Q-table file {path} does not exist")
@@ -218,38 +233,36 @@ class NextActionPairing:
 
     def __init__(self, policy):
         self.policy = policy
-        self.pending: TensorDictBase | None = None
+        self.pending: dict = {}  # stream (worker, trajectory) -> its held-back transition
 
     def __call__(self, batch: TensorDictBase) -> TensorDictBase | None:
-        """Takes a flat, time-ordered batch from one env; returns the transitions whose ``a'`` is known."""
+        """Takes a collector batch (one env or several workers, see :func:`~maniskill_pnp.agents.collection.streams`);
+        returns the transitions whose ``a'`` is known."""
         ready = []
-        for i in range(batch.batch_size[0]):
-            frame = batch[i : i + 1].clone()
-            if self.pending is not None:
-                self._check_continues(self.pending, frame)
-                self.pending.set("next_action", frame.get("action"))
-                ready.append(self.pending)
-                self.pending = None
-            terminated = bool(frame.get(("next", "terminated")).any())
-            truncated = bool(frame.get(("next", "truncated")).any())
-            if terminated:
-                frame.set("next_action", torch.zeros_like(frame.get("action")))
-                ready.append(frame)
-            elif truncated:
-                with torch.no_grad():
-                    follow = self.policy(frame.get("next").exclude("reward", "done", "terminated", "truncated").clone())
-                frame.set("next_action", follow.get("action"))
-                ready.append(frame)
-            else:
-                self.pending = frame
+        for stream, frames in streams(batch):
+            for i in range(frames.shape[0]):
+                frame = frames[i : i + 1].clone()
+                pending = self.pending.pop(stream, None)
+                if pending is not None:
+                    self._check_continues(pending, frame)
+                    pending.set("next_action", frame.get("action"))
+                    ready.append(pending)
+                terminated = bool(frame.get(("next", "terminated")).any())
+                truncated = bool(frame.get(("next", "truncated")).any())
+                if terminated:
+                    frame.set("next_action", torch.zeros_like(frame.get("action")))
+                    ready.append(frame)
+                elif truncated:
+                    with torch.no_grad():
+                        follow = self.policy(frame.get("next").exclude("reward", "done", "terminated", "truncated").clone())
+                    frame.set("next_action", follow.get("action"))
+                    ready.append(frame)
+                else:
+                    self.pending[stream] = frame
         return torch.cat(ready) if ready else None
 
     @staticmethod
     def _check_continues(pending: TensorDictBase, frame: TensorDictBase) -> None:
-        key = ("collector", "traj_ids")
-        if key in pending.keys(True) and key in frame.keys(True):
-            if not torch.equal(pending.get(key), frame.get(key)):
-                raise RuntimeError("a non-terminal transition was followed by another trajectory's frame")
         if not torch.equal(pending.get(("next", "observation")), frame.get("observation")):
             raise RuntimeError("the frame after a non-terminal transition does not start at its next state")
 
@@ -277,10 +290,16 @@ def main(cfg: ConveyorConfig) -> dict:
     bootstrap = bootstrap_for(cfg.algorithm)
     pairing = NextActionPairing(explore)
 
-    # 4. make the collector (one env, a few frames per batch, exploration on)
-    collector = Collector(
-        env, explore, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.steps,
-        exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
+    # 4. make the collector (a few frames per worker per batch, exploration on); with several workers the env
+    #    above only gave the specs, and each worker builds its own
+    backend = resolve_backend(cfg.collector, cfg.workers)
+    collection = dict(backend=backend, workers=cfg.workers, sync=cfg.sync, worker_seeds=worker_seeds(cfg.seed, cfg.workers))
+    if backend != "direct":
+        env.close()
+        env = None
+    collector = make_collector(
+        partial(make_worker_env, cfg), explore, seed=cfg.seed, total_frames=cfg.steps,
+        frames_per_worker=cfg.frames_per_batch, workers=cfg.workers, backend=backend, sync=cfg.sync, env=env,
     )
 
     # 5. make the logger (CSV files or TensorBoard events in the run folder)
@@ -298,6 +317,7 @@ def main(cfg: ConveyorConfig) -> dict:
         if ready is not None:
             td_update(table, ready, alpha=cfg.alpha, gamma=cfg.gamma, bootstrap=bootstrap)
         egreedy.step(batch.numel())
+        sync_weights(collector)  # the workers act with the updated table and ε
         frames += batch.numel()
         ends = batch.get(("next", "done")).reshape(-1)
         for ok in batch.get(("next", "success")).reshape(-1)[ends].tolist():
@@ -315,13 +335,14 @@ def main(cfg: ConveyorConfig) -> dict:
     bar.close()
     logger.close()  # flushes TensorBoard's buffered events into the file
     collector.shutdown()
-    env.close()
+    if env is not None:
+        env.close()
     wall = time.perf_counter() - t0
 
     # 7. save the Q-table (atomically, with its config and shapes)
     summary = dict(
         run_dir=str(run_dir), steps=frames, episodes=episodes, placed=placed,
-        final_running_success_rate=running, wall_s=wall,
+        final_running_success_rate=running, wall_s=wall, collection=collection,
     )
     save_qtable(table, cfg, run_dir / "qtable.pt", spec=spec, extra=dict(train=summary))
     write_json(run_dir / "train_summary.json", summary)
@@ -329,5 +350,6 @@ def main(cfg: ConveyorConfig) -> dict:
 
 
 __all__ = [
-    "ConveyorConfig", "NextActionPairing", "load_qtable", "qtable_file", "main", "make_env", "save_qtable", "valid_action_table",
+    "ConveyorConfig", "NextActionPairing", "load_qtable", "qtable_file", "main", "make_env", "make_worker_env", "save_qtable",
+    "valid_action_table",
 ]

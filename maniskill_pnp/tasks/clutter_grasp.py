@@ -247,10 +247,11 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         primitive, rot, row, col = (int(v) for v in self.action_layout.decode(index))
         prims = self._primitives()
         before = self._height
-        t0 = time.perf_counter()
+        t0, sim0 = time.perf_counter(), prims.executor.sim_steps
         outcome = self._execute(primitive, rot, row, col)
         home = prims.go_home()
         if not home.ok:  # one more plan (RRT is randomized) before leaving the arm in the cameras' view
+            outcome["planning_time"] += home.planning_time
             home = prims.go_home()
         t_motion = time.perf_counter() - t0
         self._elapsed_steps += 1
@@ -262,7 +263,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.consecutive_failures = 0 if success else self.consecutive_failures + 1
         outcome["planning_time"] += home.planning_time
         self.last = dict(outcome, home_ok=bool(home.ok), action=index, pixel=(rot, row, col), time_motion=t_motion,
-                         fault=self.detect_fault())
+                         sim_steps=prims.executor.sim_steps - sim0, fault=self.detect_fault())
         info = self.get_info()
         info["time_render"], info["time_heightmap"] = self._t_render, self._t_heightmap
         terminated = torch.tensor([info["objects_remaining"] == 0], device=self.device)
@@ -273,6 +274,15 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         )
         self._last_obs = obs
         return obs, torch.tensor([reward], dtype=torch.float32, device=self.device), terminated, truncated, info
+
+    @property
+    def step_timings(self) -> dict:
+        """Where the last step's time went, in seconds: ``render`` and ``heightmap`` of its closing observation,
+        ``planning`` (IK, RRT-Connect, time parameterization), ``motion`` (the primitive and the way home, planning
+        included), and its ``sim_steps`` (physics steps)."""
+        last = getattr(self, "last", {})
+        return dict(render=self._t_render, heightmap=self._t_heightmap, planning=float(last.get("planning_time", 0.0)),
+                    motion=float(last.get("time_motion", 0.0)), sim_steps=int(last.get("sim_steps", 0)))
 
     def _execute(self, primitive: int, rot: int, row: int, col: int) -> dict:
         """Run the decoded action (the arm is left where the primitive ends; ``step`` sends it home).
@@ -306,10 +316,11 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         xyz[2] = self.workspace.grasp_tcp_height(surface)
         yaw = float(self.workspace.rotation_to_yaw(rot))
         pick = prims.pick(grasp_pose(xyz, yaw), target=None, candidates=self._in_workspace())
-        placed, place_stage, place_reason = False, "", ""
+        placed, place_stage, place_reason, planning_time = False, "", "", pick.planning_time
         if pick.grasped:
             place = prims.place(self.workspace.bin.region())
             placed, place_stage, place_reason = place.placed, place.stage, place.reason
+            planning_time += place.planning_time
             if not placed:
                 # Carrying failed (object still held) or it had not come to rest yet: open wide, wait, look again.
                 prims.executor.gripper(1.0, self.RELEASE_STEPS)
@@ -318,7 +329,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         return dict(
             grasp_success=bool(pick.grasped), place_success=bool(placed), stage=pick.stage, reason=pick.reason,
             place_stage=place_stage, place_reason=place_reason, grasp_position=[float(v) for v in xyz], grasp_yaw=yaw,
-            planning_time=pick.planning_time,
+            planning_time=planning_time,
         )
 
     def _check_action(self, action) -> int:

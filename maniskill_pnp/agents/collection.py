@@ -1,0 +1,187 @@
+"""Where a recipe's transitions come from: one env in this process, several env processes, or Ray workers.
+
+All three are TorchRL collectors built by :func:`make_collector`, so a recipe's loop is the same for each:
+
+========== ============================================================== ===============================
+backend    what runs the envs                                             TorchRL class
+========== ============================================================== ===============================
+direct     one env in the learner's process (``workers`` must be 1)       ``Collector``
+process    ``workers`` env processes on this machine                      ``MultiSyncCollector`` /
+                                                                          ``MultiAsyncCollector``
+ray        ``workers`` Ray actors, on this machine or across a cluster    ``RayCollector``
+========== ============================================================== ===============================
+
+Every worker builds its own env from a picklable ``make_env(seed)`` and seeds it (and its process' torch, numpy and
+``random``) with its own seed from :func:`worker_seeds`, so workers draw different clutters and different ε-random
+actions; the recipes record the seeds in their ``train_summary.json``. With ``sync`` (the default) each batch
+holds ``frames_per_worker`` frames of every worker, stacked as rows; without it, each batch is one worker's frames
+as soon as they are ready (fresher data, less reproducible). The learner pushes its weights (and the ε of the
+exploration module, a buffer) to the workers with :func:`sync_weights` after its updates.
+
+A Ray run joins the cluster named by the ``RAY_ADDRESS`` environment variable (``ray.init``'s rule) or starts a
+local Ray instance; see the README's "Scaling out".
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import socket
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from torchrl.collectors import BaseCollector, Collector
+from torchrl.envs import EnvBase
+from torchrl.envs.utils import ExplorationType
+
+from maniskill_pnp.agents.run_io import MissingExtraError
+
+#: Collector backends: the three of the table above, and "auto" (direct for one worker, process for more).
+BACKENDS = ("auto", "direct", "process", "ray")
+#: Seeds of two workers differ by this much, so the episodes of one never repeat those of another.
+WORKER_SEED_STRIDE = 100_003
+
+TRAJ_KEY = ("collector", "traj_ids")
+#: ``ray.init`` keywords of the ray backend: no dashboard, workers' output not forwarded to the learner's console.
+RAY_INIT = dict(address=None, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
+
+
+def check_collection(workers: int, backend: str, sync: bool = True) -> None:
+    """ValueError naming the problem for a worker count / backend pair that cannot run."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown collector backend {backend!r}; valid: {list(BACKENDS)}")
+    if backend == "direct" and workers != 1:
+        raise ValueError(f"the direct collector runs one env in this process; use backend 'process' or 'ray' for "
+                         f"workers={workers}")
+    if backend == "ray" and not sync:
+        raise ValueError("the ray backend needs sync=True (each Ray worker numbers its trajectories on its own, so "
+                         "only the rows of a synchronous batch tell the workers apart)")
+
+
+def resolve_backend(backend: str, workers: int) -> str:
+    """The backend "auto" stands for with ``workers`` workers; any other name unchanged."""
+    if backend == "auto":
+        return "direct" if workers == 1 else "process"
+    return backend
+
+
+def worker_seeds(seed: int, workers: int) -> list[int]:
+    """The env seed of each worker: ``seed``, ``seed + WORKER_SEED_STRIDE``, ..."""
+    return [int(seed) + WORKER_SEED_STRIDE * i for i in range(workers)]
+
+
+def seed_process(seed: int) -> None:
+    """Seed torch, numpy and ``random`` of the calling process."""
+    torch.manual_seed(seed)
+    np.random.seed(seed % 2**32)
+    random.seed(seed)
+
+
+def _process_id() -> tuple[str, int]:
+    return socket.gethostname(), os.getpid()
+
+
+@dataclass(frozen=True)
+class WorkerEnv:
+    """Picklable constructor of one worker's env: seeds the worker process, builds ``make_env(seed)``, seeds it.
+
+    In a worker (a spawned process or a Ray actor) it seeds that process' torch, numpy and ``random`` too; called in
+    the learner's own process (TorchRL may build one env there to read specs) it leaves the learner's RNGs alone.
+    """
+
+    make_env: Callable[[int], EnvBase]
+    seed: int
+    learner: tuple[str, int] = field(default_factory=_process_id)
+
+    def __call__(self) -> EnvBase:
+        if _process_id() != self.learner:
+            seed_process(self.seed)
+        env = self.make_env(self.seed)
+        env.set_seed(self.seed)
+        return env
+
+
+def make_collector(
+    make_env: Callable[[int], EnvBase],
+    policy,
+    *,
+    seed: int,
+    total_frames: int,
+    frames_per_worker: int = 1,
+    workers: int = 1,
+    backend: str = "direct",
+    sync: bool = True,
+    env: EnvBase | None = None,
+) -> BaseCollector:
+    """A TorchRL collector of ``policy`` (exploration on) over ``workers`` envs built by ``make_env(seed)``.
+
+    Args:
+        make_env: Picklable (a module-level function or a ``functools.partial`` of one): seed -> TorchRL env.
+        policy: The acting policy (ε-greedy); its weights and buffers are copied to the workers.
+        seed: Seed of the first worker (see :func:`worker_seeds`).
+        total_frames: Frames to collect over all workers (rounded up to whole batches by TorchRL).
+        frames_per_worker: Frames each worker adds to a batch.
+        workers, backend, sync: See the module docstring; checked by :func:`check_collection`.
+        env: With the direct backend, an env already built (and seeded) by the caller; otherwise it is built here.
+    """
+    check_collection(workers, backend, sync)
+    backend = resolve_backend(backend, workers)
+    common = dict(total_frames=total_frames, exploration_type=ExplorationType.RANDOM)
+    if backend == "direct":
+        if env is None:
+            env = make_env(seed)
+            env.set_seed(seed)
+        return Collector(env, policy, frames_per_batch=frames_per_worker, auto_register_policy_transforms=False,
+                         **common)
+    factories = [WorkerEnv(make_env, s) for s in worker_seeds(seed, workers)]
+    if backend == "process":
+        collector = Collector(factories, policy, backend="process", sync=sync, frames_per_batch=frames_per_worker * workers,
+                              cat_results="stack", auto_register_policy_transforms=False, **common)
+    else:
+        try:
+            import ray  # noqa: F401
+        except ImportError as e:
+            raise MissingExtraError("the ray backend needs Ray: pip install 'maniskill_pnp[ray]'") from e
+        # Ray schedules the workers by CPUs only (TorchRL's default also reserves 2 GiB each; a 224 px clutter env
+        # needs about 1.4 GB); ray.init joins RAY_ADDRESS's cluster when that is set, else starts a local instance.
+        collector = Collector(factories, policy, backend="ray", sync=True, frames_per_batch=frames_per_worker * workers,
+                              remote_configs=dict(num_cpus=1), ray_init_config=RAY_INIT,
+                              collector_kwargs=dict(auto_register_policy_transforms=False), **common)
+    collector.update_policy_weights_()  # the workers start from the learner's weights, not their pickled copy
+    return collector
+
+
+def sync_weights(collector: BaseCollector) -> None:
+    """Push the learner's policy weights and buffers (ε included) to the workers; nothing to do for ``direct``."""
+    if type(collector) is not Collector:
+        collector.update_policy_weights_()
+
+
+def streams(batch: TensorDictBase) -> Iterator[tuple[tuple[int, int], TensorDictBase]]:
+    """Split a collector batch into runs of consecutive frames of one trajectory, in time order.
+
+    Yields ``((row, traj_id), frames)``: ``row`` is the batch row (the worker, in a synchronous multi-worker batch;
+    0 otherwise) and ``traj_id`` TorchRL's trajectory id, so the pair names one episode of one worker even when
+    Ray workers number their trajectories independently. ``frames`` is flat (1-D).
+    """
+    rows = batch.reshape(-1, batch.shape[-1]) if batch.ndim > 1 else batch.reshape(1, -1)
+    for r in range(rows.shape[0]):
+        row = rows[r]
+        ids = row.get(TRAJ_KEY) if TRAJ_KEY in row.keys(True) else torch.zeros(row.shape[0], dtype=torch.long)
+        start = 0
+        for i in range(1, row.shape[0] + 1):
+            if i == row.shape[0] or ids[i] != ids[start]:
+                yield (r, int(ids[start])), row[start:i]
+                start = i
+
+
+__all__ = [
+    "BACKENDS", "WORKER_SEED_STRIDE", "WorkerEnv", "check_collection", "make_collector", "resolve_backend", "seed_process",
+    "streams",
+    "sync_weights", "worker_seeds",
+]

@@ -1,0 +1,115 @@
+"""Collection with several env workers: TorchRL's process collectors over every task, the Ray collector with 2 local
+workers, and both recipes learning from multi-worker batches (seeds per worker recorded)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from maniskill_pnp.agents.clutter_recipe import ACTION_COLUMNS, ClutterConfig
+from maniskill_pnp.agents.clutter_recipe import main as train_clutter
+from maniskill_pnp.agents.collection import (
+    WORKER_SEED_STRIDE, check_collection, make_collector, resolve_backend, streams, worker_seeds,
+)
+from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, load_qtable
+from maniskill_pnp.agents.conveyor_recipe import main as train_conveyor
+from maniskill_pnp.bench.scale import COLLECTION_TASKS, collection_setup
+
+TINY = dict(heightmap_size=32, num_rotations=2, num_objects=2)
+
+
+@pytest.mark.parametrize("workers, backend, sync, message", [
+    (0, "auto", True, "workers must be an integer >= 1, got 0"),
+    (2, "mpi", True, "unknown collector backend 'mpi'"),
+    (2, "direct", True, "the direct collector runs one env in this process"),
+    (2, "ray", False, "the ray backend needs sync=True"),
+])
+def test_bad_collection_settings_name_the_problem(workers, backend, sync, message):
+    with pytest.raises(ValueError, match=message):
+        check_collection(workers, backend, sync)
+    with pytest.raises(ValueError, match=message):  # the recipes check before building anything
+        ConveyorConfig(workers=workers, collector=backend, sync=sync)
+
+
+def test_backend_and_worker_seeds():
+    assert resolve_backend("auto", 1) == "direct" and resolve_backend("auto", 2) == "process"
+    assert resolve_backend("ray", 1) == "ray"
+    assert worker_seeds(5, 3) == [5, 5 + WORKER_SEED_STRIDE, 5 + 2 * WORKER_SEED_STRIDE]
+
+
+def test_streams_tell_workers_and_episodes_apart():
+    # two workers of a synchronous batch, numbering their trajectories independently (as Ray workers do);
+    # worker 1 starts a new episode at its third frame
+    ids = torch.tensor([[0, 0, 0, 0], [0, 0, 1, 1]])
+    batch = TensorDict({"x": torch.arange(8).reshape(2, 4), "collector": {"traj_ids": ids}}, [2, 4])
+    assert [(k, f["x"].tolist()) for k, f in streams(batch)] == [((0, 0), [0, 1, 2, 3]), ((1, 0), [4, 5]),
+                                                                 ((1, 1), [6, 7])]
+    flat = TensorDict({"x": torch.arange(3)}, [3])  # no trajectory ids: one stream
+    assert [(k, f["x"].tolist()) for k, f in streams(flat)] == [((0, 0), [0, 1, 2])]
+
+
+@pytest.mark.parametrize("task", COLLECTION_TASKS)
+def test_two_worker_processes_give_well_formed_batches(task):
+    make_env, policy = collection_setup(task, seed=3, **TINY)
+    collector = make_collector(make_env, policy, seed=3, total_frames=4, workers=2, backend="process")
+    try:
+        batches = [b.clone() for b in collector]
+    finally:
+        collector.shutdown()
+    assert len(batches) == 2
+    obs_keys = ("observation",) if task == "conveyor" else ("color_heightmap", "depth_heightmap")
+    for batch in batches:
+        assert batch.shape[0] == 2 and batch.numel() == 2  # one frame of each worker
+        for key in ("action", ("next", "reward"), ("next", "done"), ("collector", "traj_ids"), *obs_keys,
+                    *(("next", k) for k in obs_keys)):
+            assert key in batch.keys(True), key
+        assert torch.isfinite(batch.get(("next", "reward")).float()).all()
+        assert (batch.get("action") >= 0).all()
+    first = batches[0]
+    ids = first.get(("collector", "traj_ids")).reshape(2)
+    assert ids[0] != ids[1]  # the process workers share one trajectory counter
+    if task != "conveyor":  # different seeds, different clutters
+        depth = first.get("depth_heightmap").reshape(2, -1)
+        assert not torch.equal(depth[0], depth[1])
+        assert depth.shape[1] == TINY["heightmap_size"] ** 2
+
+
+def test_conveyor_recipe_learns_from_two_worker_processes(tmp_path):
+    cfg = ConveyorConfig(steps=12, frames_per_batch=3, workers=2, log_interval=6, seed=2, out=tmp_path)
+    summary = train_conveyor(cfg)
+    assert summary["steps"] == 12 and summary["episodes"] >= 2
+    assert summary["collection"] == dict(backend="process", workers=2, sync=True, worker_seeds=[2, 2 + WORKER_SEED_STRIDE])
+    table, _, _ = load_qtable(cfg.run_dir)
+    assert (table.values != cfg.q_init).any()  # the TD updates reached the table
+    assert json.loads((cfg.run_dir / "train_summary.json").read_text())["collection"]["workers"] == 2
+
+
+def test_clutter_recipe_with_two_workers_then_resumed_with_one(tmp_path):
+    cfg = ClutterConfig.from_preset("gs-cpu-small", **TINY, steps=4, workers=2, checkpoint_interval=3, log_interval=1,
+                                    out=tmp_path)
+    summary = train_clutter(cfg)
+    assert summary["steps"] == 4 and summary["updates"] == 4 * cfg.updates_per_step
+    assert summary["collection"]["worker_seeds"] == [0, WORKER_SEED_STRIDE]
+    rows = (cfg.run_dir / "actions.csv").read_text().splitlines()
+    assert rows[0] == ",".join(ACTION_COLUMNS) and [int(r.split(",")[0]) for r in rows[1:]] == [1, 2, 3, 4]
+    resumed = train_clutter(ClutterConfig.from_json({**cfg.to_json(), "steps": 6, "workers": 1, "resume": True}))
+    assert resumed["start_step"] == 4 and resumed["steps"] == 6 and resumed["collection"]["backend"] == "direct"
+    assert len((cfg.run_dir / "actions.csv").read_text().splitlines()) == 1 + 6
+
+
+@pytest.mark.ray
+def test_ray_collects_from_two_local_workers(tmp_path):
+    import ray
+
+    cfg = ConveyorConfig(steps=12, frames_per_batch=3, workers=2, collector="ray", log_interval=6, seed=4, out=tmp_path)
+    try:
+        summary = train_conveyor(cfg)
+    finally:
+        ray.shutdown()
+    assert summary["steps"] == 12 and summary["episodes"] >= 2
+    assert summary["collection"] == dict(backend="ray", workers=2, sync=True, worker_seeds=[4, 4 + WORKER_SEED_STRIDE])
+    table, _, _ = load_qtable(cfg.run_dir)
+    assert (table.values != cfg.q_init).any()
