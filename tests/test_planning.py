@@ -7,7 +7,7 @@ import pytest
 import sapien
 
 from maniskill_pnp.planning import MotionPrimitives, PlanCache, grasp_pose
-from maniskill_pnp.planning.trajectory import densify
+from maniskill_pnp.planning.trajectory import densify, time_parameterize
 
 STATIC = {"table-workspace", "ground", "bin"}
 
@@ -159,3 +159,18 @@ def test_unreachable_target_is_a_failure_result_not_an_exception(cube_env):
     assert not res.ok and res.stage == "input" and "nothing is held" in res.reason
     res = prims.pick(_cube_grasp(cube_env), target="no_such_object")
     assert not res.ok and res.stage == "input" and "no_such_object" in res.reason
+
+
+class _FailingTOPP:
+    """An mplib planner stand-in whose TOPP-RA finds no parameterization, as mplib's does on some paths."""
+
+    def TOPP(self, path, step):
+        raise RuntimeError("Fail to parameterize path")
+
+
+def test_time_parameterization_falls_back_to_constant_speed_when_toppra_fails():
+    path = np.array([[0.0, 0.0], [0.3, -0.1], [0.3, 0.5]])
+    qs = time_parameterize(path, dt=0.05, max_velocity=1.0, max_acceleration=2.0, planner=_FailingTOPP())
+    steps = np.abs(np.diff(np.vstack([path[:1], qs]), axis=0)).max(axis=1)
+    assert np.allclose(qs[-1], path[-1]) and steps.max() <= 1.0 * 0.05 + 1e-9
+    assert len(qs) == int(np.ceil(0.3 / 0.05)) + int(np.ceil(0.6 / 0.05))  # the fastest joint at full speed throughout

@@ -16,7 +16,7 @@ def densify(path: np.ndarray, max_step: float = 0.05) -> np.ndarray:
         raise ValueError(f"a path is an (N, dof) array with N >= 1, got shape {path.shape}")
     out = [path[0]]
     for a, b in zip(path[:-1], path[1:]):
-        n = max(1, int(np.ceil(np.max(np.abs(b - a)) / max_step)))
+        n = max(1, int(np.ceil(np.max(np.abs(b - a)) / max_step - 1e-9)))  # a step of exactly max_step is one step
         out.extend(a + (b - a) * t for t in np.linspace(0.0, 1.0, n + 1)[1:])
     return np.stack(out)
 
@@ -32,7 +32,8 @@ def time_parameterize(path: np.ndarray, dt: float, max_velocity: float, max_acce
         planner: The ``mplib.Planner`` whose TOPP-RA implementation is used.
 
     Returns:
-        Positions (M×dof); the last row is exactly the path's end.
+        Positions (M×dof); the last row is exactly the path's end. Where TOPP-RA fails on a path, the
+        :func:`constant_speed` samples of it (the same checked path, without the acceleration limit).
     """
     path = densify(path)
     if len(path) < 2 or np.allclose(path[0], path[-1], atol=1e-6):
@@ -45,8 +46,20 @@ def time_parameterize(path: np.ndarray, dt: float, max_velocity: float, max_acce
     path = path[keep]
     if len(path) == 2:
         path = densify(path, max_step=float(np.max(np.abs(path[1] - path[0]))) / 2 + 1e-9)
-    _, qs, _, _, _ = planner.TOPP(path, step=dt)
+    try:
+        _, qs, _, _, _ = planner.TOPP(path, step=dt)
+    except RuntimeError:  # TOPP-RA finds no feasible parameterization of some paths ("Fail to parameterize path")
+        return constant_speed(path, dt, max_velocity)
     qs = np.asarray(qs, dtype=np.float64)
     if len(qs) == 0 or not np.allclose(qs[-1], path[-1], atol=1e-4):
         qs = np.concatenate([qs.reshape(-1, dof), path[-1:]])
     return qs
+
+
+def constant_speed(path: np.ndarray, dt: float, max_velocity: float) -> np.ndarray:
+    """Joint positions along ``path`` at every ``dt`` seconds with the fastest joint at ``max_velocity`` throughout
+    (no acceleration limit): the fallback of :func:`time_parameterize`. The last row is exactly the path's end."""
+    if not dt > 0 or not max_velocity > 0:
+        raise ValueError(f"dt and max_velocity must be > 0, got {dt}, {max_velocity}")
+    qs = densify(path, max_step=max_velocity * dt)
+    return qs[1:] if len(qs) > 1 else qs.copy()
