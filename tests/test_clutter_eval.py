@@ -112,3 +112,22 @@ def test_record_clutter_errors_name_the_problem(tmp_path):
         ClutterVideoConfig(checkpoint=tmp_path, frame_every=0)
     with pytest.raises(SystemExit, match="record-clutter: .*nowhere"):
         cli(["record-clutter", str(tmp_path / "nowhere"), "--out", str(tmp_path / "video")])
+
+
+def test_decide_never_picks_an_excluded_action(tiny_clutter_run):
+    import torch
+
+    from maniskill_pnp.agents.clutter_eval import decide, load_policy
+
+    actor, cfg, _ = load_policy(tiny_clutter_run, torch.device("cpu"))
+    s = cfg.heightmap_size
+    depth = torch.zeros(1, s, s)
+    depth[0, s // 4 : s // 2, s // 4 : s // 2] = 0.05  # one block of material: the mask allows grasps on it only
+    obs = dict(color_heightmap=torch.full((1, s, s, 3), 128, dtype=torch.uint8), depth_heightmap=depth)
+    best, maps = decide(actor, obs, torch.device("cpu"))
+    second, _ = decide(actor, obs, torch.device("cpu"), exclude=[best])
+    allowed = actor.action_mask(depth).reshape(-1)
+    flat = maps.reshape(-1)
+    assert second != best and allowed[second] and flat[second] == flat[allowed].sort(descending=True).values[1]
+    everything = torch.nonzero(allowed).reshape(-1).tolist()
+    assert decide(actor, obs, torch.device("cpu"), exclude=everything)[0] == best  # nothing left: the argmax stays

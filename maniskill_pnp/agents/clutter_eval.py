@@ -6,7 +6,9 @@ reset with seed ``seed + i``. The default seed 1000 keeps the test scenes apart 
 An episode ends when the workspace is clear, when the task truncates it (too many consecutive failures or
 actions) or after ``max_steps`` actions. The policy acts under the action mask its training used (grasps only where
 there is material, see :mod:`~maniskill_pnp.agents.pixel_mask`); ``grasp_only`` also masks out a G&S agent's
-slides, the thesis' grasp-only comparison on the same network.
+slides, the thesis' grasp-only comparison on the same network. With ``avoid_repeats`` the policy never repeats an
+action that failed since the last success (pure argmax without it: a failure that leaves the scene unchanged leaves
+the argmax unchanged, so one failing action can repeat until the failure limit ends the episode).
 
 Scenarios (``scenarios``, one table row each, like the thesis' Table IX): ``"train"`` (the checkpoint's object
 count), an object count such as ``"10"``, a density preset of the task (``"min"``, ``"medium"``, ``"max"``) or
@@ -39,6 +41,7 @@ import math
 import statistics
 import time
 from dataclasses import dataclass
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +91,10 @@ class ClutterEvalConfig:
     """Scenes to evaluate, one table row each: "train", an object count, "min", "medium", "max" or "complicated"."""
     grasp_only: bool = False
     """Mask out every primitive but grasps (a G&S agent evaluated as a grasp-only agent)."""
+    avoid_repeats: bool = False
+    """Never repeat an action that failed (a failed grasp, a slide that changed nothing) until the next success:
+    a failure that leaves the scene as it was leaves the greedy argmax where it was, so without this memory the
+    policy can repeat one failing action until the failure limit ends the episode."""
     out: Path = Path("runs/clutter_eval")
     """Folder for eval_summary.json, eval_table.md/.csv and q_heatmaps.png."""
     device: str = "auto"
@@ -182,21 +189,28 @@ def summarize(episodes: list[dict]) -> dict:
 
 # ----------------------------------------------------------------------------- episodes
 @torch.inference_mode()
-def decide(actor: GreedyPixelActor, obs: dict, device: torch.device) -> tuple[int, torch.Tensor]:
-    """Greedy flat action index and the Q maps ``(P, R, H, W)`` (on the CPU) of one env observation."""
+def decide(actor: GreedyPixelActor, obs: dict, device: torch.device, exclude: Collection[int] = ()) -> tuple[int, torch.Tensor]:
+    """Greedy flat action index and the Q maps ``(P, R, H, W)`` (on the CPU) of one env observation; the flat
+    action indices in ``exclude`` are never chosen (unless they are all the allowed actions)."""
     color, depth = obs["color_heightmap"].to(device), obs["depth_heightmap"].to(device)
-    values, action = actor(color, depth)[:2]
+    values, action, *mask = actor(color, depth)
+    if exclude:
+        allowed = mask[0].reshape(-1).clone() if mask else torch.ones(values.numel(), dtype=torch.bool, device=values.device)
+        allowed[torch.as_tensor(list(exclude), device=values.device)] = False
+        if allowed.any():
+            action = values.reshape(-1).masked_fill(~allowed, float("-inf")).argmax()
     net = actor.q_network
     maps = values.reshape(len(net.primitives), net.num_rotations, *depth.shape[-2:])
     return int(action.reshape(-1)[0]), maps.float().cpu()
 
 
 def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, max_steps: int | None,
-                on_step=None, scenario: str = "train") -> tuple[dict, dict]:
+                on_step=None, scenario: str = "train", avoid_repeats: bool = False) -> tuple[dict, dict]:
     """One greedy episode of the gymnasium env ``env`` from ``reset(seed=seed)``.
 
     Args:
         on_step: Called with the step's ``info`` after every grasp (the progress bar's hook).
+        avoid_repeats: Mask out the actions that failed since the last success (see :class:`ClutterEvalConfig`).
 
     Returns:
         The episode record (``EPISODE_COLUMNS``) and the first decision: ``{"color", "depth", "maps", "action"}``.
@@ -206,8 +220,9 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
     first = None
     actions = attempts = grasps = placed = max_run = 0
     done = False
+    failed = []  # actions that failed since the last success
     while not done and (max_steps is None or actions < max_steps):
-        action, maps = decide(actor, obs, device)
+        action, maps = decide(actor, obs, device, exclude=failed if avoid_repeats else ())
         if first is None:
             first = dict(color=obs["color_heightmap"][0].cpu().numpy(), depth=obs["depth_heightmap"][0].cpu().numpy(),
                          maps=maps.numpy(), action=action)
@@ -217,6 +232,10 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         grasps += int(info["grasp_success"])
         placed += int(info["place_success"])
         max_run = max(max_run, int(info["consecutive_failures"]))
+        if int(info["consecutive_failures"]) > 0:
+            failed.append(action)
+        else:
+            failed.clear()
         done = bool(terminated.item() or truncated.item())
         if on_step is not None:
             on_step(info)
@@ -338,7 +357,8 @@ def run(cfg: ClutterEvalConfig) -> dict:
             try:
                 scenario_episodes = []
                 for i in range(cfg.episodes):
-                    record, decision = run_episode(env, actor, cfg.seed + i, device, cfg.max_steps, on_step, scenario)
+                    record, decision = run_episode(env, actor, cfg.seed + i, device, cfg.max_steps, on_step, scenario,
+                                                   cfg.avoid_repeats)
                     scenario_episodes.append(record)
                     first = first or decision
                     bar.update()

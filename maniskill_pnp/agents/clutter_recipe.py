@@ -427,8 +427,9 @@ def checkpoint_file(path: Path) -> Path:
 
 
 def load_checkpoint(path: Path) -> dict:
-    """The payload of :func:`save_checkpoint`; ValueError naming the file if it is not one."""
-    path = Path(path)
+    """The payload of :func:`save_checkpoint` (``path``: the file or its run folder); ValueError naming the file if
+    it is not one."""
+    path = checkpoint_file(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
     try:
