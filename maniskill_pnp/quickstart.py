@@ -16,7 +16,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from maniskill_pnp.agents.run_io import write_json
+from maniskill_pnp.agents.run_io import require_positive, write_json
 
 #: Agents that ship with the package: network weights and config exported from a training run
 #: (:func:`~maniskill_pnp.agents.clutter_recipe.export_weights`); the README says which run and command.
@@ -44,9 +44,7 @@ class QuickstartConfig:
 
     def __post_init__(self):
         object.__setattr__(self, "out", Path(self.out))
-        for name in ("conveyor_steps", "eval_iterations", "max_decisions"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        require_positive(self, ("conveyor_steps", "eval_iterations", "max_decisions"))
 
     @property
     def agent_path(self) -> Path:

@@ -44,7 +44,7 @@ from tqdm import tqdm
 
 from maniskill_pnp.agents.collection import check_collection, make_collector, resolve_backend, streams, sync_weights, worker_seeds
 from maniskill_pnp.agents.run_io import (
-    RunConfig, atomic_write_bytes, check_logger, make_logger, require_logger, write_json,
+    RunConfig, atomic_write_bytes, check_logger, make_logger, require_logger, require_positive, write_json,
 )
 from maniskill_pnp.agents.pixel_fcn import BACKBONES, MultiPrimitiveQNetwork
 from maniskill_pnp.agents.pixel_loss import PixelBCELoss, PixelDQNLoss
@@ -197,9 +197,7 @@ class ClutterConfig(RunConfig):
         positive = ("head_channels", "num_rotations", "heightmap_size", "num_objects", "steps", "target_update_interval",
                     "batch_size", "updates_per_step", "learning_starts", "replay_capacity", "eps_decay_steps", "checkpoint_interval",
                     "log_interval", "success_window")
-        for name in positive:
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        require_positive(self, positive)
         if self.episodes < 0:
             raise ValueError(f"episodes must be >= 0, got {self.episodes}")
 

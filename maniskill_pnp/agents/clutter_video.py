@@ -22,7 +22,7 @@ import numpy as np
 
 from maniskill_pnp.agents.clutter_eval import SCENARIOS, decide, is_scenario, load_policy, scenario_options
 from maniskill_pnp.agents.clutter_recipe import checkpoint_file, make_env
-from maniskill_pnp.agents.run_io import write_json
+from maniskill_pnp.agents.run_io import require_positive, write_json
 from maniskill_pnp.runtime import resolve_device
 
 #: Side (px) of each heightmap / Q-map panel in the video and the strip.
@@ -62,9 +62,7 @@ class ClutterVideoConfig:
         object.__setattr__(self, "scenario", str(self.scenario))
         if not is_scenario(self.scenario):
             raise ValueError(f"unknown scenario {self.scenario!r}; valid: a positive object count or one of {list(SCENARIOS)}")
-        for name in ("max_steps", "frame_every", "fps"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        require_positive(self, ("max_steps", "frame_every", "fps"))
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
 

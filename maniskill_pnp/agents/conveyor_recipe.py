@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from maniskill_pnp.agents.collection import check_collection, make_collector, resolve_backend, streams, sync_weights, worker_seeds
 from maniskill_pnp.agents.run_io import (
-    RunConfig, atomic_write_bytes, check_logger, make_logger, require_logger, write_json,
+    RunConfig, atomic_write_bytes, check_logger, make_logger, require_logger, require_positive, write_json,
 )
 from maniskill_pnp.agents.tabular import ALGORITHMS, QTable, StateActionMask, bootstrap_for, make_qtable_policy, td_update
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, REWARD_SCHEMES, SPEEDS, ConveyorSpec
@@ -118,9 +118,7 @@ class ConveyorConfig(RunConfig):
             raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
         if not 0.0 <= self.eps_end <= self.eps_start <= 1.0:
             raise ValueError(f"need 0 <= eps_end <= eps_start <= 1, got {self.eps_start} -> {self.eps_end}")
-        for name in ("steps", "eps_decay_steps", "frames_per_batch", "success_window", "log_interval"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        require_positive(self, ("steps", "eps_decay_steps", "frames_per_batch", "success_window", "log_interval"))
 
     @property
     def run_name(self) -> str:

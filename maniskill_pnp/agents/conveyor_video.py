@@ -19,7 +19,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from maniskill_pnp.agents.clutter_video import even_frame, label
 from maniskill_pnp.agents.conveyor_recipe import load_qtable, make_env, qtable_file
-from maniskill_pnp.agents.run_io import write_json
+from maniskill_pnp.agents.run_io import require_positive, write_json
 from maniskill_pnp.agents.tabular import make_qtable_policy
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, SPEEDS
 
@@ -52,9 +52,7 @@ class ConveyorVideoConfig:
                                    ("speed", self.speed, SPEEDS)):
             if value is not None and value not in valid:
                 raise ValueError(f"unknown {name} {value!r}; valid: {list(valid)}")
-        for name in ("frame_every", "fps"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        require_positive(self, ("frame_every", "fps"))
 
     @property
     def checkpoint_path(self) -> Path:

@@ -187,3 +187,10 @@ def atomic_write_bytes(path: Path, write) -> None:
 def write_json(path: Path, obj) -> None:
     """``obj`` as indented JSON at ``path``, written atomically."""
     atomic_write_bytes(path, lambda f: f.write(json.dumps(obj, indent=2).encode()))
+
+
+def require_positive(config, names) -> None:
+    """ValueError naming the first of ``names`` whose value on ``config`` is below 1 (counts, intervals, sizes)."""
+    for name in names:
+        if getattr(config, name) < 1:
+            raise ValueError(f"{name} must be >= 1, got {getattr(config, name)}")

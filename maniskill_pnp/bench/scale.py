@@ -29,6 +29,7 @@ import gymnasium as gym
 import torch
 from tqdm import tqdm
 
+from maniskill_pnp.agents.run_io import require_positive
 from maniskill_pnp.bench.common import machine_info, write_report
 from maniskill_pnp.runtime import default_backends
 
@@ -83,9 +84,7 @@ class EnvOverheadBenchConfig:
     out: Path = Path("runs/bench/env_overhead.json")
 
     def __post_init__(self):
-        for name in ("actions", "bare_steps", "num_objects", "heightmap_size"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        require_positive(self, ("actions", "bare_steps", "num_objects", "heightmap_size"))
 
 
 def _bare_pickcube(steps: int, seed: int) -> dict:
@@ -200,9 +199,7 @@ class CollectionBenchConfig:
         if not workers or min(workers) < 1:
             raise ValueError(f"workers must be counts >= 1, got {list(self.workers)}")
         object.__setattr__(self, "workers", workers)
-        for name in ("frames", "num_objects"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        require_positive(self, ("frames", "num_objects"))
         if self.warmup < 0:
             raise ValueError(f"warmup must be >= 0, got {self.warmup}")
 
@@ -298,9 +295,7 @@ class DecisionBreakdownBenchConfig:
 
         if self.preset not in PRESETS:
             raise ValueError(f"unknown preset {self.preset!r}; valid: {list(PRESETS)}")
-        for name in ("decisions", "num_objects"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        require_positive(self, ("decisions", "num_objects"))
 
 
 def breakdown_table(rows: list[dict]) -> str:
