@@ -552,7 +552,7 @@ assert depth.shape == (1, size, size) and color.shape == (1, size, size, 3)
 assert env.action_spec.space.n == cfg.num_rotations * size * size
 
 mask = make_action_mask(cfg)
-allowed = mask.pixel_masks(depth)[0, 0]  # (H, W) pixels where a grasp is allowed
+allowed = mask.pixel_masks(depth)[0, 0, 0]  # (H, W) pixels where a grasp (rotation 0) is allowed
 fig, axes = plt.subplots(1, 3, figsize=(11, 3.6))
 axes[0].imshow(color[0].numpy())
 axes[0].set_title("colour heightmap")

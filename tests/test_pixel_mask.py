@@ -36,18 +36,56 @@ class FixedMaps(nn.Module):
         return self.maps.expand(x.shape[0], *self.maps.shape[1:])
 
 
-def test_grasps_only_on_material_slides_near_it():
+def test_grasps_only_on_material_slides_from_bare_table_towards_it():
     layout = PixelActionLayout(3, R, H, W)
-    mask = HeightmapActionMask(("grasp", "left_slide", "right_slide"), R, slide_reach_px=1)
+    mask = HeightmapActionMask(("grasp", "left_slide", "right_slide"), R, slide_clear_px=0, slide_ahead_px=2)
     flat = mask(block_height())
     assert flat.shape == (1, layout.size) and flat.dtype == torch.bool
     maps = flat.reshape(1, *layout.shape)[0]
     occupied = block_height()[0] > 0.01
     for r in range(R):
         assert torch.equal(maps[0, r], occupied)
-    near = torch.zeros(H, W, dtype=torch.bool)
-    near[1:5, 4:8] = True  # the block grown by one pixel
-    assert torch.equal(maps[1, 0], near) and torch.equal(maps[2, 1], near)
+    # Rotation 0 pushes left along +y (growing rows), right along -y; rotation 1 (180°) the other way round.
+    # The block fills rows 2-3, cols 5-6: a left slide of rotation 0 must start 1-2 rows above it.
+    towards_growing_rows = torch.zeros(H, W, dtype=torch.bool)
+    towards_growing_rows[0:2, 5:7] = True
+    towards_falling_rows = torch.zeros(H, W, dtype=torch.bool)
+    towards_falling_rows[4:6, 5:7] = True
+    assert torch.equal(maps[1, 0], towards_growing_rows) and torch.equal(maps[2, 1], towards_growing_rows)
+    assert torch.equal(maps[2, 0], towards_falling_rows) and torch.equal(maps[1, 1], towards_falling_rows)
+
+
+def test_slides_keep_clear_of_material_at_their_start_and_follow_the_workspace_direction():
+    from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+    rots, size = 4, 16
+    height = torch.zeros(1, size, size)
+    height[:, 7:9, 7:9] = 0.05
+    mask = HeightmapActionMask(("left_slide", "right_slide"), rots, slide_clear_px=1, slide_ahead_px=4)
+    maps = mask.pixel_masks(height)[0]
+    assert maps.shape == (2, rots, size, size)
+    ws = WorkspaceSpec(num_rotations=rots)
+    for p, side in enumerate(("left", "right")):
+        for r in range(rots):
+            rows, cols = torch.nonzero(maps[p, r], as_tuple=True)
+            assert len(rows) > 0
+            dx, dy = ws.slide_direction(r, side)
+            # every allowed start lies on the block's far side from the push: the block centre is ahead of it
+            ahead = (7.5 - rows.double()) * dy + (7.5 - cols.double()) * dx
+            assert (ahead > 0).all()
+            # ... at least two pixels from the block (one pixel of clearance) and at most four
+            gap = torch.maximum((rows - 7.5).abs(), (cols - 7.5).abs()) - 0.5
+            assert gap.min() >= 2 and gap.max() <= 4
+
+
+def test_mask_for_workspace_converts_metres_to_pixels():
+    from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+    ws = WorkspaceSpec(heightmap_size=64, pixel_size=0.007, num_rotations=16)
+    mask = HeightmapActionMask.for_workspace(("grasp", "left_slide"), ws)
+    assert (mask.slide_clear_px, mask.slide_ahead_px) == (1, 6)  # 1 cm / 7 mm, half of 8 cm / 7 mm
+    with pytest.raises(ValueError, match="ahead_fraction"):
+        HeightmapActionMask.for_workspace(("grasp",), ws, ahead_fraction=0.0)
 
 
 def test_an_empty_heightmap_allows_everything():
@@ -56,7 +94,8 @@ def test_an_empty_heightmap_allows_everything():
 
 
 @pytest.mark.parametrize("kwargs", [dict(primitives=("push",)), dict(primitives=()), dict(num_rotations=0),
-                                    dict(min_height=-1.0), dict(slide_reach_px=-1)])
+                                    dict(min_height=-1.0), dict(slide_clear_px=-1),
+                                    dict(slide_ahead_px=0)])
 def test_bad_mask_options_raise(kwargs):
     args = dict(primitives=("grasp",), num_rotations=R) | kwargs
     with pytest.raises(ValueError):

@@ -18,8 +18,9 @@ counters, RNG states) and, with ``save_replay`` (the default), from the replay b
 transition at 64 px, 0.5 MB at 224 px). The checkpoint names the replay folder of its own step, written before
 it, so a crash between the two leaves the previous pair intact.
 
-With ``mask_empty`` (the default) the actor and the bootstrap range over the actions that can touch something,
-grasps where the heightmap shows material (:class:`~maniskill_pnp.agents.pixel_mask.HeightmapActionMask`).
+With ``mask_empty`` (the default) the actor and the bootstrap range over the actions that can touch something:
+grasps where the heightmap shows material, slides that start on bare table and meet material within half their
+length (:class:`~maniskill_pnp.agents.pixel_mask.HeightmapActionMask`).
 
 Metrics of the ε-greedy behaviour (DESIGN.md names), logged as running values over the last ``success_window``
 actions: ``grasp_success`` (grasp attempts that lifted an object / grasp attempts) and ``success_rate`` (objects
@@ -51,6 +52,7 @@ from maniskill_pnp.agents.pixel_loss import PixelBCELoss, PixelDQNLoss
 from maniskill_pnp.agents.pixel_mask import HeightmapActionMask
 from maniskill_pnp.agents.pixel_policy import heightmap_input, make_pixel_policy
 from maniskill_pnp.agents.pixel_replay import make_pixel_replay, pack_transition, unpack_transition
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
 CHECKPOINT_FORMAT = "maniskill_pnp.clutter_dqn/1"
 #: The tasks a run trains on: env id and the primitives of its action (one FCN each).
@@ -239,18 +241,21 @@ PRESETS: dict[str, dict] = {
 
 
 # ----------------------------------------------------------------------------- factories
+def make_workspace(cfg: ClutterConfig) -> WorkspaceSpec:
+    """The workspace of the config: its heightmap size, pixel size and rotations (the rest at the task defaults)."""
+    return WorkspaceSpec(
+        heightmap_size=cfg.heightmap_size, pixel_size=cfg.workspace_side / cfg.heightmap_size, num_rotations=cfg.num_rotations
+    )
+
+
 def make_env(cfg: ClutterConfig, **task_kwargs):
     """The config's task as a TorchRL env, with its heightmap size, rotations and object count (``task_kwargs``
     override or add task options, e.g. ``num_objects="medium"`` or ``layout="complicated"``)."""
-    from maniskill_pnp.tasks.workspace import WorkspaceSpec
     from maniskill_pnp.torchrl_env import make_torchrl_env
 
     import maniskill_pnp  # noqa: F401  (registers the task ids)
 
-    workspace = WorkspaceSpec(
-        heightmap_size=cfg.heightmap_size, pixel_size=cfg.workspace_side / cfg.heightmap_size, num_rotations=cfg.num_rotations
-    )
-    options = dict(num_objects=cfg.num_objects, workspace=workspace, planner_seed=cfg.seed)
+    options = dict(num_objects=cfg.num_objects, workspace=make_workspace(cfg), planner_seed=cfg.seed)
     if cfg.task == "grasp_slide":
         options["reward_scheme"] = cfg.reward_scheme
     options.update(task_kwargs)
@@ -264,12 +269,13 @@ def make_worker_env(cfg: ClutterConfig, seed: int):
 
 
 def make_action_mask(cfg: ClutterConfig, enabled: tuple[str, ...] | None = None) -> HeightmapActionMask | None:
-    """The action mask of the config: material under grasps / near slides with ``mask_empty``, and only the
-    ``enabled`` primitives (e.g. ``("grasp",)`` for a G&S agent restricted to grasps); None when neither applies."""
+    """The action mask of the config: with ``mask_empty``, grasps on material and slides from bare table towards
+    material within half a slide; only the ``enabled`` primitives (e.g. ``("grasp",)`` for a G&S agent restricted to
+    grasps); None when neither applies."""
     if not cfg.mask_empty and enabled is None:
         return None
-    return HeightmapActionMask(
-        cfg.primitives, cfg.num_rotations, min_height=cfg.mask_min_height if cfg.mask_empty else None, enabled=enabled
+    return HeightmapActionMask.for_workspace(
+        cfg.primitives, make_workspace(cfg), min_height=cfg.mask_min_height if cfg.mask_empty else None, enabled=enabled
     )
 
 
@@ -626,6 +632,6 @@ def main(cfg: ClutterConfig) -> dict:
 
 
 __all__ = [
-    "ACTION_COLUMNS", "ClutterConfig", "checkpoint_file", "export_weights", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_model", "make_worker_env",
+    "ACTION_COLUMNS", "ClutterConfig", "checkpoint_file", "export_weights", "LOSSES", "OutcomeTracker", "PRESETS", "TASKS", "load_checkpoint", "main", "make_action_mask", "make_env", "make_workspace", "make_model", "make_worker_env",
     "save_checkpoint", "to_transitions",
 ]
