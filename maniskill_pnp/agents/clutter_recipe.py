@@ -104,6 +104,9 @@ class ClutterConfig(RunConfig):
     """Grasp attempts (env steps) to train for, counted over resumes."""
     episodes: int = 0
     """Stop after this many finished episodes as well (0: no episode limit)."""
+    max_minutes: float = 0.0
+    """Stop, with a checkpoint, after this many minutes of this invocation's training loop as well (0: no time
+    limit; a resumed run starts its clock again)."""
     gamma: float = 0.5
     """Discount of the DQN target ``r + gamma * max Q'(s')``."""
     delay_value: bool = True
@@ -200,8 +203,8 @@ class ClutterConfig(RunConfig):
                     "batch_size", "updates_per_step", "learning_starts", "replay_capacity", "eps_decay_steps", "checkpoint_interval",
                     "log_interval", "success_window")
         require_positive(self, positive)
-        if self.episodes < 0:
-            raise ValueError(f"episodes must be >= 0, got {self.episodes}")
+        if self.episodes < 0 or not self.max_minutes >= 0:
+            raise ValueError(f"episodes and max_minutes must be >= 0, got {self.episodes}, {self.max_minutes}")
 
     @classmethod
     def from_preset(cls, name: str, **overrides) -> ClutterConfig:
@@ -604,7 +607,8 @@ def main(cfg: ClutterConfig) -> dict:
         bar.set_postfix(grasp=f"{running:.2f}", success=f"{tracker.success_rate:.2f}", eps=f"{egreedy.eps.item():.2f}",
                         loss=f"{last_loss:.3g}", episodes=counters["episodes"])
         step = counters["steps"]
-        done = step >= cfg.steps or (cfg.episodes and counters["episodes"] >= cfg.episodes)
+        out_of_time = cfg.max_minutes and time.perf_counter() - t0 >= 60 * cfg.max_minutes
+        done = step >= cfg.steps or (cfg.episodes and counters["episodes"] >= cfg.episodes) or out_of_time
         if crossed(step, n, cfg.log_interval) or done:
             logger.log_scalar("train/loss", last_loss, step=step)
             logger.log_scalar("train/epsilon", egreedy.eps.item(), step=step)
@@ -626,7 +630,7 @@ def main(cfg: ClutterConfig) -> dict:
 
     # 8. summary (the loop wrote the final checkpoint)
     summary.update(counters, running_grasp_success=running, running_success_rate=tracker.success_rate,
-                   wall_s=time.perf_counter() - t0)
+                   wall_s=time.perf_counter() - t0, stopped_by_time=bool(out_of_time))
     write_json(run_dir / "train_summary.json", summary)
     return summary
 
