@@ -75,6 +75,12 @@ def test_presets_resolve():
     assert ClutterConfig.from_preset("cpu-small", seed=3).run_name.endswith("seed3")
 
 
+@pytest.mark.parametrize("option", [dict(max_minutes=-1.0), dict(max_minutes=float("nan")), dict(episodes=-1)])
+def test_negative_budgets_are_rejected(option):
+    with pytest.raises(ValueError, match=next(iter(option))):
+        ClutterConfig(**option)
+
+
 def _train(out, steps: int, *extra: str, preset: str = "cpu-small") -> dict:
     cmd = [
         sys.executable, "-m", "maniskill_pnp.cli", "train-clutter", "--preset", preset, "--heightmap-size", "32",
@@ -105,6 +111,10 @@ def test_smoke_run_then_resume(tmp_path):
     assert [p.name for p in run_dir.glob("replay_step*")] == ["replay_step5"]
     assert load_actions(run_dir)["step"].tolist() == [1, 2, 3, 4, 5]  # one row per action, across the resume
     assert len((run_dir / "scalars" / "train" / "loss.csv").read_text().splitlines()) >= 5
+
+    third = _train(tmp_path, 50, "--resume", "--max-minutes", "0.0001")  # the clock runs out after the first action
+    assert third["stopped_by_time"] and third["steps"] == 6
+    assert load_checkpoint(run_dir / "checkpoint.pt")["counters"]["steps"] == 6  # stopped with a checkpoint
 
 
 def test_grasp_slide_bce_smoke_run(tmp_path):
