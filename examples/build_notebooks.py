@@ -790,7 +790,7 @@ env.close()
 
 The `gs-cpu-small` preset is the G&S agent sized for a CPU: three small-trunk FCNs (grasp, left slide, right slide),
 4 rotations, 64 px. It acts by the argmax over all three primitives' maps, under the action mask (grasps on material,
-slides within 3 px of it). Here the networks are untrained, so its choices are arbitrary; the point is the
+slides from bare table towards material within half a slide). Here the networks are untrained, so its choices are arbitrary; the point is the
 interface: the per-primitive Q maps and what each step did. Training it is
 `maniskill-pnp train-clutter --preset gs-cpu-small` (`clutter_recipe.main`), evaluating it on these layouts
 `maniskill-pnp eval-clutter <run> --scenarios complicated`.
