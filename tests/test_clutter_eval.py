@@ -26,6 +26,7 @@ def test_eval_writes_metrics_tables_and_q_map_figure(tiny_clutter_run, tmp_path)
     assert episode["seed"] == 1000 and 1 <= episode["actions"] <= 2 and episode["objects"] == 2
     assert episode["grasp_attempts"] == episode["actions"]  # a grasp-only agent
     assert report["train_config"]["num_rotations"] == 2
+    assert report["action_mask"]["primitives"] == ["grasp"] and report["action_mask"]["num_rotations"] == 2
     assert summary["metrics"] == report["metrics"]
 
     csv_lines = (out / "eval_table.csv").read_text().splitlines()

@@ -378,6 +378,7 @@ def run(cfg: ClutterEvalConfig) -> dict:
     summary = dict(
         checkpoint=str(ckpt), metrics=metrics, episodes=episodes, wall_s=wall, device=str(device),
         eval_config=cfg.to_json(), train_config=train_cfg.to_json(), train_counters=counters,
+        action_mask=None if actor.action_mask is None else dataclasses.asdict(actor.action_mask),
         files=dict(summary=str(json_path), table_md=str(md_path), table_csv=str(csv_path), episodes_csv=str(ep_path),
                    q_heatmaps=str(png_path)),
     )
