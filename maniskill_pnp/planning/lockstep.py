@@ -5,14 +5,21 @@ steps: each env brings its own timed trajectory (its own plan, its own length), 
 the longest, and :class:`LockstepExecutor` sends one batched joint-position target per control step. An env whose
 trajectory has ended, or that has none this time, holds its last target (stands still) and is marked inactive.
 
-The same code drives one env on the CPU (``num_envs = 1``): :class:`~maniskill_pnp.planning.executor.SimExecutor`,
-which the tasks' primitives use, is a one-env view of a :class:`LockstepExecutor`.
+Each env's share of a control phase is a :class:`Motion` (a timed path, a gripper command, how long to hold, when it
+has settled); :meth:`LockstepExecutor.run` executes one Motion per env together. A primitive is a *program*: a
+generator that yields Motions, receives each one's final tracking error, and returns its result.
+:func:`drive` advances the programs of all envs in lockstep (each env's planning runs between the shared control
+phases, on its own view of its sub-scene) until every program has returned.
+
+The same code drives one env on the CPU (``num_envs = 1``): the tasks' primitives
+(:class:`~maniskill_pnp.planning.primitives.MotionPrimitives`) run their programs through :func:`drive` with one env.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -73,6 +80,42 @@ def pad_trajectories(paths: Sequence[np.ndarray | None], hold: np.ndarray) -> Pa
         targets[i, len(p):] = last
     active = np.arange(steps)[None, :] < lengths[:, None]
     return PaddedTrajectories(targets, active, lengths)
+
+
+@dataclass(frozen=True)
+class Motion:
+    """One env's share of a lockstep control phase.
+
+    The env tracks ``targets`` row by row (one per control step; None: it holds its current arm target), holds the
+    last one for at least ``min_steps`` steps from the phase start, then settles: it holds until ``until()`` is
+    true (when given) or until its joints are within ``settle_tol`` rad of the held target (when not None), for at
+    most ``max_settle`` more steps.
+
+    Attributes:
+        targets: (T, dof) timed joint targets, or None.
+        gripper: Gripper command for the phase (+1 open, -1 closed); None keeps the env's last command.
+        min_steps: Control steps the phase lasts at least (e.g. the gripper's closing time).
+        settle_tol: Joint tolerance (rad) of the settle phase; None: no joint settling.
+        max_settle: Most extra steps spent settling.
+        until: A test run after each settle step (e.g. "the released object is at rest"); None: none.
+    """
+
+    targets: np.ndarray | None = None
+    gripper: float | None = None
+    min_steps: int = 0
+    settle_tol: float | None = 0.01
+    max_settle: int = 20
+    until: Callable[[], bool] | None = None
+
+    def __post_init__(self):
+        if self.min_steps < 0 or self.max_settle < 0:
+            raise ValueError(f"min_steps and max_settle must be >= 0, got {self.min_steps}, {self.max_settle}")
+        if self.gripper is not None and not -1.0 <= self.gripper <= 1.0:
+            raise ValueError(f"gripper command must be in [-1, 1], got {self.gripper}")
+
+
+#: A primitive program: yields the Motions of its env, receives each one's final error (rad), returns its result.
+Program = Generator[Motion, float, Any]
 
 
 class LockstepExecutor:
@@ -138,18 +181,56 @@ class LockstepExecutor:
         if self.on_control_step is not None:
             self.on_control_step()
 
+    def run(self, motions: Sequence[Motion | None]) -> np.ndarray:
+        """Execute one :class:`Motion` per env (None: the env idles, holding its target) in shared control steps.
+
+        Envs whose motion has finished hold their last target while the others go on; the phase ends when every
+        env's motion (path, ``min_steps`` and settling) is done.
+
+        Returns:
+            (N,) each env's max joint error (rad) from its final target at the end (0 for an idle env).
+        """
+        if len(motions) != self.num_envs:
+            raise ValueError(f"need one motion (or None) per env: {len(motions)} for {self.num_envs} envs")
+        paths = [None if m is None else m.targets for m in motions]
+        padded = pad_trajectories(paths, self.arm_targets())
+        final = padded.targets[:, -1] if padded.steps else self.arm_targets()
+        for i, m in enumerate(motions):
+            if m is not None and m.gripper is not None:
+                self._gripper[i] = m.gripper
+        busy = np.array([0 if m is None else max(int(padded.lengths[i]), m.min_steps) for i, m in enumerate(motions)])
+        settle_left = np.array([0 if m is None else m.max_settle for m in motions])
+        done = np.array([m is None for m in motions])  # an env whose motion is done stays done, holding its target
+        t = 0
+        while True:
+            err = np.max(np.abs(self.qpos() - final), axis=1)
+            for i, m in enumerate(motions):
+                if done[i] or t < busy[i]:
+                    continue
+                if settle_left[i] <= 0:
+                    done[i] = True
+                elif m.until is not None:
+                    done[i] = m.until()
+                else:
+                    done[i] = m.settle_tol is None or err[i] < m.settle_tol
+                settle_left[i] -= int(not done[i])
+            if done.all():
+                break
+            self.step(padded.targets[:, t] if t < padded.steps else final)
+            t += 1
+        err[[m is None for m in motions]] = 0.0
+        return err
+
     def follow(self, paths: Sequence[np.ndarray | None], *, settle_tol: float = 0.01, max_settle: int = 20) -> np.ndarray:
-        """Track each env's timed trajectory in lockstep (padded, see :func:`pad_trajectories`), then hold every
-        env's last target until all are within ``settle_tol`` rad of it (or ``max_settle`` steps passed).
+        """Track each env's timed trajectory in lockstep (padded, see :func:`pad_trajectories`), then hold each
+        env's last target until it is within ``settle_tol`` rad of it (or ``max_settle`` steps passed).
 
         Returns:
             (N,) the remaining max joint error (rad) of each env.
         """
-        padded = pad_trajectories(paths, self.arm_targets())
-        for t in range(padded.steps):
-            self.step(padded.targets[:, t])
-        final = padded.targets[:, -1] if padded.steps else self.arm_targets()
-        return self.settle(final, tol=settle_tol, max_steps=max_settle)
+        motions = [Motion(np.zeros((0, self.arm.arm_joints)) if p is None else p, settle_tol=settle_tol, max_settle=max_settle)
+                   for p in paths]
+        return self.run(motions)
 
     def settle(self, q_targets: np.ndarray, *, tol: float = 0.01, max_steps: int = 20) -> np.ndarray:
         """Hold ``q_targets`` (N, dof) until every env is within ``tol`` rad of its target; returns (N,) errors."""
@@ -165,9 +246,41 @@ class LockstepExecutor:
     def gripper(self, commands: np.ndarray | float, steps: int) -> None:
         """Command the grippers (+1 open, -1 closed; one per env or one for all) for ``steps`` control steps, arms
         held at their current targets."""
-        hold = self.arm_targets()
-        for _ in range(steps):
-            self.step(hold, gripper=commands)
+        commands = np.broadcast_to(np.asarray(commands, dtype=np.float64), (self.num_envs,))
+        self.run([Motion(gripper=float(c), min_steps=steps, settle_tol=None) for c in commands])
 
 
-__all__ = ["CONTROL_MODE", "LockstepExecutor", "PaddedTrajectories", "pad_trajectories"]
+def drive(executor: LockstepExecutor, programs: Sequence[Program | None]) -> list:
+    """Run one primitive program per env (None: the env idles) in lockstep until all have returned.
+
+    Each round gathers the Motion every unfinished program is waiting on, executes them together
+    (:meth:`LockstepExecutor.run`), and sends each program its env's final error; a program's planning runs
+    between rounds.
+
+    Returns:
+        Each program's return value (None for an idle env).
+    """
+    if len(programs) != executor.num_envs:
+        raise ValueError(f"need one program (or None) per env: {len(programs)} for {executor.num_envs} envs")
+    results: list = [None] * len(programs)
+    waiting: list[Motion | None] = [None] * len(programs)
+
+    def advance(i: int, sent: float | None) -> None:
+        try:
+            waiting[i] = next(programs[i]) if sent is None else programs[i].send(sent)
+        except StopIteration as done:
+            waiting[i], results[i] = None, done.value
+
+    for i, program in enumerate(programs):
+        if program is not None:
+            advance(i, None)
+    while any(m is not None for m in waiting):
+        current = list(waiting)
+        errors = executor.run(current)
+        for i, m in enumerate(current):
+            if m is not None:
+                advance(i, float(errors[i]))
+    return results
+
+
+__all__ = ["CONTROL_MODE", "LockstepExecutor", "Motion", "PaddedTrajectories", "Program", "drive", "pad_trajectories"]

@@ -5,11 +5,21 @@ the simulator (finger gap and lift for a grasp, landing inside the bin for a pla
 slide) and returns a :class:`PrimitiveResult`: ``ok``, the stage that failed and why. A planning failure is a
 result, never an exception, so one bad action never kills an episode.
 
+Every primitive is a program (:data:`~maniskill_pnp.planning.lockstep.Program`): its stages plan, then yield the
+:class:`~maniskill_pnp.planning.lockstep.Motion` to execute. Calling ``prims.pick(...)`` runs the program at once on
+the primitives' own env; ``prims.program("pick", ...)`` returns it unrun, so that the programs of all envs of a
+batched (GPU) env, one :class:`MotionPrimitives` per env sharing one
+:class:`~maniskill_pnp.planning.lockstep.LockstepExecutor`, execute together through
+:func:`~maniskill_pnp.planning.lockstep.drive`. One CPU env takes the same path with ``num_envs = 1``.
+
 Example:
     >>> prims = MotionPrimitives(env)                      # env: a ManiSkill env in pd_joint_pos mode
     >>> res = prims.pick(grasp_pose(cube_xyz, yaw=0.3), target="cube")
     >>> res.ok, res.stage, res.reason
     >>> prims.place(PlaceRegion(center=bin_xyz, half_size=(0.1, 0.1, 0.05)), target="cube")
+    >>> lockstep = LockstepExecutor(gpu_env, panda_spec())  # a batched env: one MotionPrimitives per env
+    >>> per_env = [MotionPrimitives(gpu_env, lockstep=lockstep, env_idx=i) for i in range(gpu_env.num_envs)]
+    >>> results = drive(lockstep, [p.program("slide", start[i], direction[i]) for i, p in enumerate(per_env)])
 """
 
 from __future__ import annotations
@@ -24,6 +34,7 @@ import torch
 
 from maniskill_pnp.planning.collision import CollisionWorld
 from maniskill_pnp.planning.executor import SimExecutor
+from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion, Program, drive
 from maniskill_pnp.planning.kinematics import Kinematics, quat_angle
 from maniskill_pnp.planning.robot import ArmSpec, panda_spec
 from maniskill_pnp.planning.rrt import JointSpacePlanner, PlanCache
@@ -114,7 +125,12 @@ class MotionPrimitives:
         cache: Plan cache shared across calls (a fresh one by default).
         seed: Seed of IK restarts and OMPL.
         on_control_step: Callback after every control step (video recording).
+        lockstep: The executor of all envs, shared by the per-env primitives of a batched env (a new one by default).
+        env_idx: The env (sub-scene) these primitives plan for, sense and move.
     """
+
+    #: The primitives :meth:`program` can build.
+    PRIMITIVES = ("pick", "reach", "grasp", "place", "slide", "move_to", "go_home")
 
     #: Height of the pre-grasp pose above the grasp (m).
     PREGRASP_HEIGHT = 0.10
@@ -139,11 +155,14 @@ class MotionPrimitives:
         cache: PlanCache | None = None,
         seed: int = 0,
         on_control_step=None,
+        lockstep: LockstepExecutor | None = None,
+        env_idx: int = 0,
     ):
         self.env = env.unwrapped
         self.arm = arm or panda_spec()
-        self.executor = SimExecutor(env, self.arm, on_control_step)
-        base = self.env.agent.robot.pose.raw_pose[0].cpu().numpy()
+        self.executor = SimExecutor(env, self.arm, on_control_step, lockstep=lockstep, env_idx=env_idx)
+        self.env_idx = env_idx
+        base = self.env.agent.robot.pose.raw_pose[env_idx].cpu().numpy()
         self.world = CollisionWorld(self.arm, base_pose=base)
         self.kin = Kinematics(self.world, seed=seed)
         self.planner = JointSpacePlanner(self.world, time_budget=time_budget, cache=cache or PlanCache(), seed=seed)
@@ -153,6 +172,7 @@ class MotionPrimitives:
         self.clearance = clearance
         self._ignored: set[str] = set()
         self._planning_time = 0.0
+        self._defer = False
         self.held: str | None = None
 
     def reset(self) -> None:
@@ -217,11 +237,22 @@ class MotionPrimitives:
         """Plan and move to the home configuration (above the workspace, out of the cameras' way)."""
         return self._run(self._move_free, self.home, "go_home")
 
-    # ================================================================== stage logic
+    def program(self, primitive: str, *args, **kwargs) -> Program:
+        """The program of ``primitive`` (one of :data:`PRIMITIVES`, with that method's arguments), not yet run: a
+        generator for :func:`~maniskill_pnp.planning.lockstep.drive` that returns the :class:`PrimitiveResult`."""
+        if primitive not in self.PRIMITIVES:
+            raise ValueError(f"unknown primitive {primitive!r}; valid: {self.PRIMITIVES}")
+        self._defer = True
+        try:
+            return getattr(self, primitive)(*args, **kwargs)
+        finally:
+            self._defer = False
+
+    # ================================================================== stage logic (generators of Motions)
     def _pick(self, res: PrimitiveResult, pose: sapien.Pose, target: str | None, candidates) -> None:
         self._check_target(target)
-        self._reach(res, sapien.Pose(p=pose.p + [0.0, 0.0, self.PREGRASP_HEIGHT], q=pose.q), "pregrasp")
-        self._grasp(res, pose, target, candidates)
+        yield from self._reach(res, sapien.Pose(p=pose.p + [0.0, 0.0, self.PREGRASP_HEIGHT], q=pose.q), "pregrasp")
+        yield from self._grasp(res, pose, target, candidates)
 
     def _reach(self, res: PrimitiveResult, pose: sapien.Pose, stage: str = "reach") -> None:
         # Free-space motion: every object is an obstacle.
@@ -229,24 +260,24 @@ class MotionPrimitives:
         ik = self._timed(self.kin.ik_any, _twins(pose), self.executor.qpos())
         if not ik.ok:
             raise _StageFailed(f"{stage}_ik", ik.reason)
-        self._move_to(ik.q, f"move_to_{stage}", res)
+        yield from self._move_to(ik.q, f"move_to_{stage}", res)
 
     def _grasp(self, res: PrimitiveResult, pose: sapien.Pose, target: str | None, candidates) -> None:
         movable = self._check_target(target)
-        self.executor.gripper(1.0, self.GRIPPER_STEPS if self._fingers_closed() else 0)
+        yield self._gripper(1.0, self.GRIPPER_STEPS if self._fingers_closed() else 0)
         # Straight descent: the target (or, when unknown, any movable object) may be touched.
         self._sync(ignore={target} if target else movable)
         fk = self.kin.fk(self.executor.qpos())
         goal = min(_twins(pose), key=lambda p: quat_angle(p.q, fk.q))
-        self._straight(goal, "descend", res)
+        yield from self._straight(goal, "descend", res)
         heights = self._object_heights(movable)
-        self.executor.gripper(-1.0, self.GRIPPER_STEPS)
+        yield self._gripper(-1.0, self.GRIPPER_STEPS)
         fingers = self.executor.finger_qpos()
         closed_on_something = bool(np.min(fingers) > self.EMPTY_GAP)
         self._sync(ignore=movable)  # lift straight up through whatever is around the grasp
         self.world.set_fingers(float(np.min(fingers)))
         up = sapien.Pose(p=self.kin.fk(self.executor.qpos()).p + [0.0, 0.0, self.LIFT_HEIGHT], q=goal.q)
-        self._straight(up, "lift", res)
+        yield from self._straight(up, "lift", res)
         lifted = {n: h for n, h in self._object_heights(movable).items() if h - heights[n] > self.LIFTED}
         fingers = self.executor.finger_qpos()
         pool = set(candidates) if candidates is not None else movable
@@ -281,12 +312,12 @@ class MotionPrimitives:
             ik = self._timed(self.kin.ik_any, poses, q_now)
             if not ik.ok:
                 raise _StageFailed("place_ik", ik.reason)
-            self._move_to(ik.q, "carry", res)
+            yield from self._move_to(ik.q, "carry", res)
         finally:
             self.world.detach()
-        self.executor.gripper(1.0, self.GRIPPER_STEPS)
+        yield self._gripper(1.0, self.GRIPPER_STEPS)
         self.held = None
-        self._wait_at_rest(name)
+        yield self._wait_at_rest(name)
         pos = self._actor_position(name)
         res.placed = region.contains(pos, margin=0.01)
         if not res.placed:
@@ -303,15 +334,15 @@ class MotionPrimitives:
         # Jaws closed, across the push direction so the closed fingers form a flat pusher.
         yaw = float(np.arctan2(d[1], d[0])) + np.pi / 2
         tip = grasp_pose(start, yaw)
-        self.executor.gripper(-1.0, self.GRIPPER_STEPS if not self._fingers_closed() else 0)
+        yield self._gripper(-1.0, self.GRIPPER_STEPS if not self._fingers_closed() else 0)
         above = sapien.Pose(p=start + [0.0, 0.0, self.PREGRASP_HEIGHT], q=tip.q)
-        self._reach(res, above, "preslide")
+        yield from self._reach(res, above, "preslide")
         movable = self._movable()
         self._sync(ignore=movable)  # the tip may come down on, and then push, any movable object
         q_tcp = self.kin.fk(self.executor.qpos()).q
-        self._straight(sapien.Pose(p=start, q=q_tcp), "lower", res)
-        self._straight(sapien.Pose(p=start + length * d, q=q_tcp), "push", res)
-        self._straight(sapien.Pose(p=start + length * d + [0.0, 0.0, self.PREGRASP_HEIGHT], q=q_tcp), "retract", res)
+        yield from self._straight(sapien.Pose(p=start, q=q_tcp), "lower", res)
+        yield from self._straight(sapien.Pose(p=start + length * d, q=q_tcp), "push", res)
+        yield from self._straight(sapien.Pose(p=start + length * d + [0.0, 0.0, self.PREGRASP_HEIGHT], q=q_tcp), "retract", res)
         if target:
             after = self._actor_position(target)
             res.moved = float(np.linalg.norm((after - before)[:2]))
@@ -323,16 +354,24 @@ class MotionPrimitives:
         if self.held:
             self._attach(self.held)
         try:
-            self._move_to(q_goal, stage, res)
+            yield from self._move_to(q_goal, stage, res)
         finally:
             self.world.detach()
 
     # ================================================================== helpers
-    def _run(self, fn, *args) -> PrimitiveResult:
+    def _run(self, fn, *args) -> PrimitiveResult | Program:
+        """Run the program of stage function ``fn`` on this env now (or return it unrun, for :meth:`program`)."""
+        program = self._program(fn, *args)
+        if self._defer:
+            return program
+        lockstep = self.executor.lockstep
+        return drive(lockstep, [program if i == self.env_idx else None for i in range(lockstep.num_envs)])[self.env_idx]
+
+    def _program(self, fn, *args) -> Program:
         res = PrimitiveResult()
         steps0, self._planning_time = self.executor.sim_steps, 0.0
         try:
-            fn(res, *args)
+            yield from fn(res, *args)
             res.ok, res.stage = True, "done"
         except _StageFailed as e:
             res.ok, res.stage, res.reason = False, e.stage, e.reason
@@ -352,36 +391,38 @@ class MotionPrimitives:
 
     def _move_to(self, q_goal: np.ndarray, stage: str, res: PrimitiveResult) -> None:
         """Free-space motion: plan with the clearance margin; without it only when start or goal lie inside it."""
-        self.world.sync_scene(self.env.scene, ignore=self._ignored, skip=self.non_obstacles, margin=self.clearance)
+        self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles,
+                              margin=self.clearance)
         plan = self._timed(self.planner.plan, self.executor.qpos(), q_goal)
         if not plan.ok and plan.reason.startswith(("start", "goal")):
-            self.world.sync_scene(self.env.scene, ignore=self._ignored, skip=self.non_obstacles)
+            self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles)
             plan = self._timed(self.planner.plan, self.executor.qpos(), q_goal)
         if not plan.ok:
             raise _StageFailed(stage, plan.reason)
-        self._execute(plan.path, stage, res, "cached plan" if plan.cached else f"{len(plan.path)} waypoints")
+        yield from self._execute(plan.path, stage, res, "cached plan" if plan.cached else f"{len(plan.path)} waypoints")
 
     def _straight(self, goal: sapien.Pose, stage: str, res: PrimitiveResult) -> None:
         seg = self._timed(self.kin.straight_line, self.executor.qpos(), goal)
         if not seg.ok:
             raise _StageFailed(stage, seg.reason)
-        self._execute(seg.path, stage, res, f"{len(seg.path)} waypoints")
+        yield from self._execute(seg.path, stage, res, f"{len(seg.path)} waypoints")
 
     def _execute(self, path: np.ndarray, stage: str, res: PrimitiveResult, detail: str) -> None:
         traj = self._timed(
             time_parameterize, path, self.executor.dt, self.arm.max_velocity, self.arm.max_acceleration, self.world.mplib_planner
         )
-        err = self.executor.follow(traj)
+        err = yield Motion(traj)
         res.stages.append((stage, True, f"{detail}, {len(traj)} control steps, final error {err:.3f} rad"))
 
     def _sync(self, ignore: Collection[str] = ()) -> None:
         self._ignored = set(ignore) | ({self.held} if self.held else set())
-        self.world.sync_scene(self.env.scene, ignore=self._ignored, skip=self.non_obstacles)
+        self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles)
         self.world.set_fingers(float(np.min(self.executor.finger_qpos())))
 
     def _attach(self, name: str) -> None:
         """Add the held object's bounding box (in the TCP frame) to the arm for collision checks."""
-        mesh = self.env.scene.actors[name].get_first_collision_mesh(to_world_frame=True)
+        meshes = self.env.scene.actors[name].get_collision_meshes(to_world_frame=True)
+        mesh = meshes[self.env_idx if len(meshes) > 1 else 0]
         tcp = self.kin.fk(self.executor.qpos())
         inv = tcp.inv().to_transformation_matrix()
         v = np.asarray(mesh.vertices) @ inv[:3, :3].T + inv[:3, 3]
@@ -401,20 +442,23 @@ class MotionPrimitives:
         return bool(np.max(self.executor.finger_qpos()) < self.arm.gripper_open - 0.005)
 
     def _actor_position(self, name: str) -> np.ndarray:
-        return self.env.scene.actors[name].pose.p[0].cpu().numpy().astype(np.float64)
+        return self.env.scene.actors[name].pose.p[self.env_idx].cpu().numpy().astype(np.float64)
 
     def _object_heights(self, names: Collection[str]) -> dict[str, float]:
         return {n: float(self._actor_position(n)[2]) for n in names}
 
-    def _wait_at_rest(self, name: str, max_steps: int = 40) -> None:
-        actor = self.env.scene.actors[name]
-        hold = self.executor.qpos()
-        for _ in range(max_steps):
-            self.executor.step(hold)
-            speed = torch.linalg.norm(actor.linear_velocity[0]).item()
-            if speed < 0.01:
-                break
+    def _gripper(self, command: float, steps: int) -> Motion:
+        """The gripper command for ``steps`` control steps, the arm held where it is."""
+        return Motion(gripper=command, min_steps=steps, settle_tol=None)
 
+    def _wait_at_rest(self, name: str, max_steps: int = 40) -> Motion:
+        """Hold the arm (at least one step, at most ``max_steps``) until actor ``name`` moves slower than 1 cm/s."""
+        actor = self.env.scene.actors[name]
+
+        def at_rest() -> bool:
+            return torch.linalg.norm(actor.linear_velocity[self.env_idx]).item() < 0.01
+
+        return Motion(self.executor.qpos()[None], settle_tol=None, until=at_rest, max_settle=max_steps - 1)
 
 
 def _twins(pose: sapien.Pose) -> list[sapien.Pose]:
