@@ -203,7 +203,8 @@ class LockstepExecutor:
         done = np.array([m is None for m in motions])  # an env whose motion is done stays done, holding its target
         t = 0
         while True:
-            err = np.max(np.abs(self.qpos() - final), axis=1)
+            # joint errors are read only once some env's path is over (one read per step while settling)
+            err = np.max(np.abs(self.qpos() - final), axis=1) if (t >= busy[~done]).any() else None
             for i, m in enumerate(motions):
                 if done[i] or t < busy[i]:
                     continue
@@ -218,6 +219,7 @@ class LockstepExecutor:
                 break
             self.step(padded.targets[:, t] if t < padded.steps else final)
             t += 1
+        err = np.max(np.abs(self.qpos() - final), axis=1)
         err[[m is None for m in motions]] = 0.0
         return err
 
