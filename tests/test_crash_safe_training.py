@@ -64,3 +64,22 @@ def test_a_damaged_checkpoint_is_a_clear_error(tmp_path, damage):
     assert proc.returncode != 0
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("train-clutter: checkpoint") and "checkpoint.pt" in last and "unreadable" in last
+
+
+def test_atomic_writes_get_ordinary_file_permissions(tmp_path):
+    """Checkpoints and JSON go through a temp file (owner-only); the file in place gets 0o666 less the umask."""
+    import os
+    import stat
+
+    from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
+
+    old = os.umask(0o027)
+    try:
+        write_json(tmp_path / "summary.json", {"steps": 1})
+        atomic_write_bytes(tmp_path / "checkpoint.pt", lambda f: f.write(b"weights"))
+    finally:
+        os.umask(old)
+    for name in ("summary.json", "checkpoint.pt"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o640, name
+    assert json.loads((tmp_path / "summary.json").read_text()) == {"steps": 1}
+    assert not list(tmp_path.glob(".*.tmp"))  # no temp file left behind

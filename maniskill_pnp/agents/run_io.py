@@ -172,16 +172,27 @@ def make_logger(run_dir: Path, kind: str) -> Logger:
 
 
 def atomic_write_bytes(path: Path, write) -> None:
-    """Write through ``write(file)`` into a temp file beside ``path``, then ``os.replace`` it into place."""
+    """Write through ``write(file)`` into a temp file beside ``path``, then ``os.replace`` it into place.
+
+    The file gets the permissions of an ordinary new file (``0o666`` less the umask), not the owner-only mode of
+    the temp file, so run folders stay readable by whoever may read the folder.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
             write(f)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)  # reading the umask means setting it; put it straight back
+    os.umask(mask)
+    return mask
 
 
 def write_json(path: Path, obj) -> None:
