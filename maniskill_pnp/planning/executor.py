@@ -3,8 +3,8 @@
 :class:`SimExecutor` is the one-env view of :class:`~maniskill_pnp.planning.lockstep.LockstepExecutor` that the
 primitives use: it reads env ``env_idx``'s joints, and on a one-env ManiSkill env it also drives it directly, with
 1-D joint vectors in and out. The envs of a batched env are driven together by
-:func:`~maniskill_pnp.planning.lockstep.drive`. Each control step is ManiSkill's own (``BaseEnv._step_action``: controller targets,
-PhysX sub-steps, hooks), without the observation and reward work of ``env.step``.
+:func:`~maniskill_pnp.planning.lockstep.drive`. Each control step is ManiSkill's own (``BaseEnv._step_action``:
+controller targets, PhysX sub-steps, hooks), without the observation and reward work of ``env.step``.
 """
 
 from __future__ import annotations

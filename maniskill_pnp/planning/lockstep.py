@@ -230,9 +230,7 @@ class LockstepExecutor:
         Returns:
             (N,) the remaining max joint error (rad) of each env.
         """
-        motions = [Motion(np.zeros((0, self.arm.arm_joints)) if p is None else p, settle_tol=settle_tol, max_settle=max_settle)
-                   for p in paths]
-        return self.run(motions)
+        return self.run([Motion(p, settle_tol=settle_tol, max_settle=max_settle) for p in paths])
 
     def settle(self, q_targets: np.ndarray, *, tol: float = 0.01, max_steps: int = 20) -> np.ndarray:
         """Hold ``q_targets`` (N, dof) until every env is within ``tol`` rad of its target; returns (N,) errors."""
