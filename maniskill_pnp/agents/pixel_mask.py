@@ -24,6 +24,7 @@ Example:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 import torch.nn.functional as F
@@ -88,19 +89,22 @@ class HeightmapActionMask:
             slide_ahead_px=max(1, int(round(ahead_fraction * workspace.slide_length / px))), **kwargs,
         )
 
-    def _ahead_kernels(self, side: str, device) -> torch.Tensor:
-        """``(R, 1, K, K)`` line kernels: 1 at the pixels 1..``slide_ahead_px`` ahead of the centre along the push
-        direction of each rotation (cross-correlation, so output pixel (r, c) sums the input ahead of it)."""
+    @cached_property
+    def _ahead_kernels(self) -> dict[str, torch.Tensor]:
+        """Per slide side, ``(R, 1, K, K)`` line kernels: 1 at the pixels 1..``slide_ahead_px`` ahead of the centre
+        along the push direction of each rotation (cross-correlation, so output pixel (r, c) sums the input ahead of
+        it). Built once per mask."""
         k = self.slide_ahead_px
         ws = WorkspaceSpec(num_rotations=self.num_rotations)
-        kernels = torch.zeros(self.num_rotations, 1, 2 * k + 1, 2 * k + 1, device=device)
         steps = torch.linspace(0.5, k, 2 * k, dtype=torch.float64)
-        for rot in range(self.num_rotations):
-            dx, dy = ws.slide_direction(rot, side)  # columns follow world x, rows world y
-            rows = torch.round(k + steps * dy).long()
-            cols = torch.round(k + steps * dx).long()
-            kernels[rot, 0, rows, cols] = 1.0
-            kernels[rot, 0, k, k] = 0.0  # the start pixel is not ahead of itself
+        kernels = {}
+        for side in ("left", "right"):
+            lines = torch.zeros(self.num_rotations, 1, 2 * k + 1, 2 * k + 1)
+            for rot in range(self.num_rotations):
+                dx, dy = ws.slide_direction(rot, side)  # columns follow world x, rows world y
+                lines[rot, 0, torch.round(k + steps * dy).long(), torch.round(k + steps * dx).long()] = 1.0
+                lines[rot, 0, k, k] = 0.0  # the start pixel is not ahead of itself
+            kernels[side] = lines
         return kernels
 
     def pixel_masks(self, height: torch.Tensor) -> torch.Tensor:
@@ -123,7 +127,7 @@ class HeightmapActionMask:
             else:
                 c = self.slide_clear_px
                 clear = ~(F.max_pool2d(occupied.float(), 2 * c + 1, stride=1, padding=c) > 0)
-                kernels = self._ahead_kernels(name.removesuffix("_slide"), flat.device)
+                kernels = self._ahead_kernels[name.removesuffix("_slide")].to(flat.device)
                 ahead = F.conv2d(occupied.float(), kernels, padding=self.slide_ahead_px) > 0
                 masks.append(clear & ahead)
         return torch.stack(masks, dim=1).reshape(*batch, len(self.primitives), rots, h, w)
