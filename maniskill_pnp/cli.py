@@ -288,6 +288,8 @@ def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:
             parser.add_argument(flag, type=Path, default=None, help=help_text)
         elif f.name == "pretrained_path":
             parser.add_argument(flag, type=str, default=None, help=help_text)
+        elif f.name == "explore_weights":
+            parser.add_argument(flag, type=float, nargs="+", default=None, help=help_text)
         else:
             choices = dict(backbone=sorted(BACKBONES), task=list(TASKS), loss=list(LOSSES), optimizer=list(OPTIMIZERS),
                            reward_scheme=["default", "no_slide_reward"], logger=list(LOGGERS)).get(f.name)

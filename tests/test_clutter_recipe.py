@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import subprocess
 import sys
@@ -81,6 +82,14 @@ def test_negative_budgets_are_rejected(option):
         ClutterConfig(**option)
 
 
+def test_explore_weights_need_one_weight_per_primitive():
+    assert ClutterConfig.from_preset("gs-cpu-small", explore_weights=[2, 1, 1]).explore_weights == (2.0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="one weight per primitive"):
+        ClutterConfig.from_preset("gs-cpu-small", explore_weights=(1.0, 1.0))
+    with pytest.raises(ValueError, match="explore weights"):
+        ClutterConfig.from_preset("cpu-small", explore_weights=(0.0,))
+
+
 def _train(out, steps: int, *extra: str, preset: str = "cpu-small") -> dict:
     cmd = [
         sys.executable, "-m", "maniskill_pnp.cli", "train-clutter", "--preset", preset, "--heightmap-size", "32",
@@ -118,10 +127,15 @@ def test_smoke_run_then_resume(tmp_path):
 
 
 def test_grasp_slide_bce_smoke_run(tmp_path):
-    """The G&S agent's binary-classification baseline trains three FCNs on ClutterGraspSlide-v1."""
-    summary = _train(tmp_path, 2, "--loss", "bce", preset="gs-cpu-small")
+    """The G&S agent's binary-classification baseline trains three FCNs on ClutterGraspSlide-v1; with ε = 1 and
+    ``--explore-weights 0 1 1`` every action is a random slide."""
+    summary = _train(tmp_path, 2, "--loss", "bce", "--eps-start", "1", "--eps-end", "1", "--explore-weights", "0", "1",
+                     "1", preset="gs-cpu-small")
     assert summary["steps"] == 2 and summary["updates"] == 2
-    ckpt = load_checkpoint(tmp_path / "gs-cpu-small_small_r2_px32_seed0" / "checkpoint.pt")
+    run_dir = tmp_path / "gs-cpu-small_small_r2_px32_seed0"
+    with open(run_dir / "actions.csv") as f:
+        assert {row["primitive"] for row in csv.DictReader(f)} <= {"1", "2"}  # left or right slide
+    ckpt = load_checkpoint(run_dir / "checkpoint.pt")
     assert ClutterConfig.from_json(ckpt["config"]).task == "grasp_slide"
     assert {key.split(".")[1] for key in ckpt["model"]} == {"grasp", "left_slide", "right_slide"}
     assert "target_value_network_params" not in str(list(ckpt["loss"]))  # BCE: no bootstrap, no target network

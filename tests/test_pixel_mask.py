@@ -11,7 +11,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from maniskill_pnp.agents.pixel_loss import PixelDQNLoss
 from maniskill_pnp.agents.pixel_mask import HeightmapActionMask
-from maniskill_pnp.agents.pixel_policy import make_pixel_policy
+from maniskill_pnp.agents.pixel_policy import PrimitiveExploreMask, make_pixel_policy
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 
 H = W = 8
@@ -123,6 +123,49 @@ def test_greedy_and_random_actions_stay_in_the_mask():
     allowed = mask(block_height(1))[0]
     assert allowed[actions].all()
     assert len(set(actions.tolist())) > 4  # random, not the greedy action repeated
+
+
+def explore_actions(weights, b: int = 600) -> tuple[torch.Tensor, torch.Tensor]:
+    """``b`` ε = 1 actions of a 3-primitive actor under the block mask with ``explore_weights``, and the mask."""
+    layout = PixelActionLayout(3, R, H, W)
+    mask = HeightmapActionMask(("grasp", "left_slide", "right_slide"), R, slide_clear_px=0, slide_ahead_px=2)
+    _, explore, _ = make_pixel_policy(FixedMaps(torch.zeros(1, *layout.shape)), Categorical(layout.size, shape=(b,)),
+                                      eps_init=1.0, eps_end=1.0, annealing_num_steps=1, action_mask=mask,
+                                      explore_weights=weights)
+    with set_exploration_type(ExplorationType.RANDOM):
+        actions = explore(heightmap_td(b))["action"]
+    return actions, mask(block_height(1))[0]
+
+
+def test_explore_weights_set_each_primitives_share_of_random_actions():
+    torch.manual_seed(0)
+    _, allowed = explore_actions(None, 1)
+    per_primitive = allowed.reshape(3, -1).sum(-1)
+    assert per_primitive[1:].sum() > per_primitive[0]  # uniform draws would mostly slide on this block
+    for weights, primitive in (((1.0, 0.0, 0.0), 0), ((0.0, 0.0, 3.0), 2)):
+        actions, allowed = explore_actions(weights)
+        assert allowed[actions].all()
+        assert (actions // (R * H * W) == primitive).all()
+    actions, allowed = explore_actions((2.0, 1.0, 1.0))
+    assert allowed[actions].all()
+    share = torch.bincount(actions // (R * H * W), minlength=3).float() / len(actions)
+    torch.testing.assert_close(share, torch.tensor([0.5, 0.25, 0.25]), atol=0.06, rtol=0)
+    assert len(set(actions.tolist())) > 20  # uniform within each primitive, not one pixel per primitive
+
+
+def test_explore_weights_fall_back_to_the_whole_mask_when_their_primitives_have_no_allowed_action():
+    layout = PixelActionLayout(3, R, H, W)
+    values = torch.zeros(4, layout.size)
+    mask = torch.zeros(4, layout.size, dtype=torch.bool)
+    mask[:, layout.size - 5:] = True  # right slides only
+    out = PrimitiveExploreMask((1.0, 1.0, 0.0))(values, mask)
+    assert torch.equal(out, mask)
+
+
+@pytest.mark.parametrize("weights", [(), (-1.0, 1.0), (0.0, 0.0), (float("nan"), 1.0)])
+def test_bad_explore_weights_raise(weights):
+    with pytest.raises(ValueError, match="explore weights"):
+        PrimitiveExploreMask(weights)
 
 
 def test_bootstrap_maximises_over_allowed_actions_only():

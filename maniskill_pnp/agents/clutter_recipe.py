@@ -50,7 +50,7 @@ from maniskill_pnp.agents.run_io import (
 from maniskill_pnp.agents.pixel_fcn import BACKBONES, MultiPrimitiveQNetwork
 from maniskill_pnp.agents.pixel_loss import PixelBCELoss, PixelDQNLoss
 from maniskill_pnp.agents.pixel_mask import HeightmapActionMask
-from maniskill_pnp.agents.pixel_policy import heightmap_input, make_pixel_policy
+from maniskill_pnp.agents.pixel_policy import PrimitiveExploreMask, heightmap_input, make_pixel_policy
 from maniskill_pnp.agents.pixel_replay import make_pixel_replay, pack_transition, unpack_transition
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
@@ -147,6 +147,9 @@ class ClutterConfig(RunConfig):
     """ε after ``eps_decay_steps`` steps (linear decay, then constant)."""
     eps_decay_steps: int = 200
     """Steps over which ε decays linearly from ``eps_start`` to ``eps_end``."""
+    explore_weights: tuple[float, ...] = ()
+    """Share of each primitive (grasp, left-slide, right-slide) among the ε-random actions, e.g. 2 1 1; empty: a
+    uniform draw over the allowed actions, which in clutter makes about 4 in 5 of them slides."""
     seed: int = 0
     """Seed of the network initialisation, the episodes, the planner and the exploration."""
     workers: int = 1
@@ -203,6 +206,11 @@ class ClutterConfig(RunConfig):
                     "batch_size", "updates_per_step", "learning_starts", "replay_capacity", "eps_decay_steps", "checkpoint_interval",
                     "log_interval", "success_window")
         require_positive(self, positive)
+        object.__setattr__(self, "explore_weights", tuple(float(w) for w in self.explore_weights))
+        if self.explore_weights and len(self.explore_weights) != len(self.primitives):
+            raise ValueError(f"explore_weights needs one weight per primitive {self.primitives}, got {self.explore_weights}")
+        if self.explore_weights:
+            PrimitiveExploreMask(self.explore_weights)  # raises on negative, non-finite or all-zero weights
         if self.episodes < 0 or not self.max_minutes >= 0:
             raise ValueError(f"episodes and max_minutes must be >= 0, got {self.episodes}, {self.max_minutes}")
 
@@ -495,7 +503,7 @@ def main(cfg: ClutterConfig) -> dict:
     mask = make_action_mask(cfg)
     _, explore, egreedy = make_pixel_policy(
         model, env.action_spec, eps_init=cfg.eps_start, eps_end=cfg.eps_end, annealing_num_steps=cfg.eps_decay_steps,
-        action_mask=mask,
+        action_mask=mask, explore_weights=cfg.explore_weights or None,
     )
 
     # 3. make the prioritized replay (packed heightmaps, memory-mapped in the run folder's scratch "replay/";
