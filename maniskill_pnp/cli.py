@@ -67,7 +67,7 @@ def _given(value, default):
 
 
 def _bench_scale(args) -> None:
-    """``bench env-overhead``, ``collection`` and ``decision-breakdown`` (maniskill_pnp.bench.scale)."""
+    """``bench env-overhead``, ``collection``, ``decision-breakdown`` and ``batched-decisions`` (maniskill_pnp.bench.scale)."""
     from maniskill_pnp.bench import scale
 
     try:
@@ -78,6 +78,10 @@ def _bench_scale(args) -> None:
             cfg = scale.CollectionBenchConfig(task=args.task, workers=tuple(args.workers), frames=args.frames,
                                               out=args.out / f"collection_{args.task}.json")
             run = scale.run_collection
+        elif args.which == "batched-decisions":
+            cfg = scale.BatchedDecisionsBenchConfig(preset=args.preset, num_envs=tuple(args.num_envs),
+                                                    steps=_given(args.actions, 3), out=args.out / "batched_decisions.json")
+            run = scale.run_batched_decisions
         else:
             cfg = scale.DecisionBreakdownBenchConfig(preset=args.preset, decisions=_given(args.actions, 10),
                                                      out=args.out / "decision_breakdown.json")
@@ -346,7 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="run a benchmark; prints numbers and writes JSON")
     bench.add_argument(
         "which", choices=["primitives", "clutter-oracle", "conveyor", "pixel-memory", "decision-cost", "soak",
-                          "env-overhead", "collection", "decision-breakdown"],
+                          "env-overhead", "collection", "decision-breakdown", "batched-decisions"],
         help="primitives: pick-and-place success, planning and wall time; "
         "clutter-oracle: ClutterGrasp-v1 cleared by the scripted heightmap oracle (10 objects, --episodes scenes); "
         "conveyor: train Q-learning and SARSA with the default config, then the random test cases; "
@@ -356,20 +360,26 @@ def build_parser() -> argparse.ArgumentParser:
         "ClutterGraspSlide-v1, memory growth after --warmup and leaked scene objects across resets; "
         "env-overhead: sim steps/s of ClutterGrasp-v1's primitives (--actions of them) / a bare PickCube-v1; "
         "collection: transitions/s of --task with each of --workers env processes; decision-breakdown: render, "
-        "heightmap, network, planning and execution time of --actions greedy decisions of --preset",
+        "heightmap, network, planning and execution time of --actions greedy decisions of --preset; "
+        "batched-decisions: decisions/s of --preset's task on the GPU simulation with each of --num-envs envs "
+        "(--actions timed steps each) / the one-env CPU path",
     )
     bench.add_argument("--episodes", type=int, default=20, help="seeded episodes (primitives) or scenes (clutter-oracle) (default: %(default)s)")
     bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="folder for the JSON report (default: %(default)s)")
     bench.add_argument("--steps", type=int, default=3000, help="conveyor: training steps of each agent (default: %(default)s)")
     bench.add_argument("--actions", type=int, default=None,
                        help="soak: primitive actions in all (default: 2000); env-overhead: primitives timed (default: 8); "
-                       "decision-breakdown: decisions timed (default: 10)")
+                       "decision-breakdown: decisions timed (default: 10); batched-decisions: timed steps per env count "
+                       "(default: 3)")
     bench.add_argument("--task", choices=["conveyor", "clutter", "clutter-slide"], default="conveyor",
                        help="collection: the task collected from (default: %(default)s)")
     bench.add_argument("--workers", type=int, nargs="+", default=[1, 2],
                        help="collection: worker counts measured, ratios against the first (default: 1 2)")
     bench.add_argument("--frames", type=int, default=24, help="collection: timed transitions per worker count (default: %(default)s)")
-    bench.add_argument("--preset", default="gs-cpu-small", help="decision-breakdown: clutter recipe preset (default: %(default)s)")
+    bench.add_argument("--preset", default="gs-cpu-small",
+                       help="decision-breakdown, batched-decisions: clutter recipe preset (default: %(default)s)")
+    bench.add_argument("--num-envs", type=int, nargs="+", default=[1, 16],
+                       help="batched-decisions: env counts run on the GPU (default: 1 16)")
     bench.add_argument("--iterations", type=int, default=50, help="conveyor: iterations per random test case (default: %(default)s)")
     _add_pixel_bench_args(bench)
     bench.set_defaults(func=_bench)

@@ -42,7 +42,7 @@ def two_cubes():
 
 
 def positions(env) -> np.ndarray:
-    return np.stack([a.pose.p[0].cpu().numpy() for a in env.unwrapped._active_actors])
+    return np.stack([a.pose.p[0].cpu().numpy() for a in env.unwrapped._active_actors[0]])
 
 
 def act(env, primitive: str, rotation: int, xyz) -> tuple[float, dict]:
@@ -129,7 +129,7 @@ def test_bad_actions_name_the_valid_range_before_moving(two_cubes, action):
     with pytest.raises(ValueError, match=f"0..{N - 1}"):
         two_cubes.step(action)
     assert torch.equal(two_cubes.unwrapped.agent.robot.get_qpos(), q0)
-    assert two_cubes.unwrapped.num_actions == 0
+    assert two_cubes.unwrapped.num_actions[0] == 0
 
 
 def test_slide_that_knocks_an_object_out_of_the_workspace_is_a_failure():

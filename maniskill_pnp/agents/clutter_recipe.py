@@ -260,17 +260,19 @@ def make_workspace(cfg: ClutterConfig) -> WorkspaceSpec:
 
 
 def make_env(cfg: ClutterConfig, **task_kwargs):
-    """The config's task as a TorchRL env, with its heightmap size, rotations and object count (``task_kwargs``
-    override or add task options, e.g. ``num_objects="medium"`` or ``layout="complicated"``)."""
+    """The config's task as a TorchRL env, with its heightmap size, rotations and object count, on the CPU
+    (``task_kwargs`` override or add task and ManiSkill options, e.g. ``num_objects="medium"``,
+    ``layout="complicated"``, or ``num_envs=16, sim_backend="physx_cuda", render_backend="sapien_cuda"``)."""
     from maniskill_pnp.torchrl_env import make_torchrl_env
 
     import maniskill_pnp  # noqa: F401  (registers the task ids)
 
-    options = dict(num_objects=cfg.num_objects, workspace=make_workspace(cfg), planner_seed=cfg.seed)
+    options = dict(num_objects=cfg.num_objects, workspace=make_workspace(cfg), planner_seed=cfg.seed,
+                   sim_backend="physx_cpu", render_backend="cpu")
     if cfg.task == "grasp_slide":
         options["reward_scheme"] = cfg.reward_scheme
     options.update(task_kwargs)
-    return make_torchrl_env(TASKS[cfg.task]["env_id"], sim_backend="physx_cpu", render_backend="cpu", **options)
+    return make_torchrl_env(TASKS[cfg.task]["env_id"], **options)
 
 
 def make_worker_env(cfg: ClutterConfig, seed: int):

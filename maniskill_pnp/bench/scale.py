@@ -12,9 +12,14 @@ Worker start-up is left out: the first ``warmup`` batches are not timed.
 **decision-breakdown** — one table of where a greedy G&S decision's time goes: render, heightmap, network, planning,
 execution (primitive and way home, planning excluded), and the rest of the env step.
 
+**batched-decisions** — decisions per second of a clutter task (the recipe's exploring actor, ε = 1: random allowed
+actions, one network call for all envs) with ManiSkill's GPU simulation and rendering at each ``num_envs``, beside
+the CPU path (PhysX CPU, lavapipe, one env) measured in the same run; ratios against the CPU row. Without a CUDA GPU
+only the CPU row runs.
+
 Each prints the machine, versions and settings with its numbers and writes them as JSON
 (:func:`maniskill_pnp.bench.common.write_report`); run them with ``maniskill-pnp bench env-overhead`` /
-``collection`` / ``decision-breakdown``.
+``collection`` / ``decision-breakdown`` / ``batched-decisions``.
 """
 
 from __future__ import annotations
@@ -135,7 +140,7 @@ def _clutter_primitives(cfg: EnvOverheadBenchConfig) -> dict:
         timings = base.step_timings
         for key in ("sim_steps", "motion", "planning"):
             sums[key] += timings[key]
-        grasps += int(base.last.get("grasp_success", False))
+        grasps += int(base.last[0].get("grasp_success", False))
         td = td_next
     env.close()
     execution = sums["motion"] - sums["planning"]
@@ -348,7 +353,90 @@ def run_decision_breakdown(cfg: DecisionBreakdownBenchConfig) -> dict:
     return results
 
 
+# ============================================================================= batched-decisions
+@dataclass(frozen=True)
+class BatchedDecisionsBenchConfig:
+    """Settings of the batched-decisions benchmark.
+
+    Attributes:
+        preset: Clutter recipe preset of the task and the (untrained) actor.
+        num_envs: Env counts run on the GPU (each a fresh env); the CPU row always has one env.
+        steps: Timed steps per env count (each step is one decision per env), after one untimed step.
+        num_objects: Objects in each clutter.
+        seed: Seed of the network and the clutters.
+        out: JSON report (a Markdown table is written beside it).
+    """
+
+    preset: str = "gs-cpu-small"
+    num_envs: tuple[int, ...] = (1, 16)
+    steps: int = 3
+    num_objects: int = 10
+    seed: int = 0
+    out: Path = Path("runs/bench/batched_decisions.json")
+
+    def __post_init__(self):
+        from maniskill_pnp.agents.clutter_recipe import PRESETS
+
+        if self.preset not in PRESETS:
+            raise ValueError(f"unknown preset {self.preset!r}; valid: {list(PRESETS)}")
+        object.__setattr__(self, "num_envs", tuple(int(n) for n in self.num_envs))
+        if not self.num_envs or min(self.num_envs) < 1:
+            raise ValueError(f"num_envs must be positive env counts, got {self.num_envs}")
+        require_positive(self, ("steps", "num_objects"))
+
+
+def _time_decisions(ccfg, steps: int, seed: int, **backend) -> dict:
+    """Decisions per second of the exploring actor on the config's task built with ``backend`` options."""
+    from maniskill_pnp.agents.clutter_recipe import make_env
+
+    torch.manual_seed(seed)
+    env = make_env(ccfg, **backend)
+    env.set_seed(seed)
+    policy = _exploring_pixel_policy(ccfg, env, eps=1.0).to(env.device)
+    n = env.batch_size[0] if env.batch_size else 1
+    td = env.reset()
+    times = []
+    for _ in tqdm(range(steps + 1), desc=f"{backend.get('sim_backend')} x{n}", unit="step"):
+        t0 = time.perf_counter()
+        with torch.inference_mode():
+            td = policy(td)
+        td, td_next = env.step_and_maybe_reset(td)
+        times.append(time.perf_counter() - t0)
+        td = td_next
+    env.close()
+    timed = times[1:]  # the first step builds the planners and allocates the render buffers
+    return dict(num_envs=int(n), steps=steps, seconds=sum(timed), decisions_per_s=n * steps / sum(timed), **backend)
+
+
+def run_batched_decisions(cfg: BatchedDecisionsBenchConfig) -> dict:
+    ccfg = _clutter_config(cfg.preset, num_objects=cfg.num_objects, seed=cfg.seed)
+    rows = [_time_decisions(ccfg, cfg.steps, cfg.seed, sim_backend="physx_cpu", render_backend="cpu", num_envs=1)]
+    if torch.cuda.is_available():
+        for n in cfg.num_envs:
+            rows.append(_time_decisions(ccfg, cfg.steps, cfg.seed, sim_backend="physx_cuda", render_backend="sapien_cuda",
+                                        num_envs=n))
+    else:
+        print("no CUDA GPU: only the CPU row is measured")
+    cpu = rows[0]["decisions_per_s"]
+    lines = ["| simulation | rendering | envs | decisions/s | ÷ CPU |", "|---|---|---|---|---|"]
+    for r in rows:
+        r["ratio_to_cpu"] = r["decisions_per_s"] / cpu
+        lines.append(f"| {r['sim_backend']} | {r['render_backend']} | {r['num_envs']} | {r['decisions_per_s']:.3f} | "
+                     f"{r['ratio_to_cpu']:.2f} |")
+    table = "\n".join(lines)
+    results = dict(rows=rows, table=table)
+    out = Path(cfg.out)
+    write_report(out, "batched-decisions", {k: str(v) for k, v in asdict(cfg).items()}, results)
+    out.with_suffix(".md").write_text(table + "\n")
+    _print_machine()
+    print(f"{cfg.preset}: {ccfg.heightmap_size} px, {ccfg.num_rotations} rotations, {len(ccfg.primitives)} primitives, "
+          f"{cfg.num_objects} objects; {cfg.steps} timed steps per row")
+    print(table)
+    print(f"report: {out}")
+    return results
+
+
 __all__ = [
-    "COLLECTION_TASKS", "CollectionBenchConfig", "collection_setup", "DECISION_PARTS", "DecisionBreakdownBenchConfig",
+    "BatchedDecisionsBenchConfig", "run_batched_decisions", "COLLECTION_TASKS", "CollectionBenchConfig", "collection_setup", "DECISION_PARTS", "DecisionBreakdownBenchConfig",
     "EnvOverheadBenchConfig", "breakdown_table", "run_collection", "run_decision_breakdown", "run_env_overhead",
 ]

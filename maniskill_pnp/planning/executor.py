@@ -62,8 +62,8 @@ class SimExecutor:
         return self.lockstep.sim_steps
 
     def reset(self) -> None:
-        """Forget the last gripper command (the gripper is open after an env reset); call after ``env.reset``."""
-        self.lockstep.reset()
+        """Forget this env's last gripper command (the gripper is open after an env reset); call after ``env.reset``."""
+        self.lockstep.reset([self.env_idx])
 
     def qpos(self) -> np.ndarray:
         """Current arm joint positions."""

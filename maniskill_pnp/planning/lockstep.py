@@ -147,9 +147,10 @@ class LockstepExecutor:
         self._robot = self.env.agent.robot
         self._gripper = np.ones(self.num_envs)  # normalized gripper actions: +1 open, -1 closed
 
-    def reset(self) -> None:
-        """Forget the last gripper commands (grippers are open after an env reset); call after ``env.reset``."""
-        self._gripper[:] = 1.0
+    def reset(self, envs: Sequence[int] | None = None) -> None:
+        """Forget the last gripper commands of ``envs`` (default: all; grippers are open after an env reset); call
+        after ``env.reset`` of those envs."""
+        self._gripper[slice(None) if envs is None else list(envs)] = 1.0
 
     @property
     def sim_steps(self) -> int:

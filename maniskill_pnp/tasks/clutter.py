@@ -5,7 +5,6 @@
   (random orientation, anywhere in the spawn square, dropped from staggered heights so they pile up).
 * :func:`validate_layout` checks an explicit layout (a list of ``(ObjectSpec, pose)``): every bounding box inside
   the workspace, above the table, and no two overlapping; it raises a ``ValueError`` naming the culprits.
-* :func:`settle` steps the simulation with the arm held still until the objects stop moving.
 * :func:`object_status` says where each object is: in the workspace, in the bin, or lost.
 """
 
@@ -15,7 +14,6 @@ from collections.abc import Sequence
 
 import numpy as np
 import sapien
-import torch
 
 from maniskill_pnp.tasks.objects import KINDS, ObjectSpec, random_object_spec
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
@@ -197,26 +195,6 @@ def validate_layout(layout: Sequence[tuple[ObjectSpec, object]], workspace: Work
             if _obb_overlap(_obb(*out[i]), _obb(*out[j])):
                 raise ValueError(f"layout objects {i} ({out[i][0].kind}) and {j} ({out[j][0].kind}) overlap")
     return out
-
-
-def settle(env, actors: Sequence, hold_action: torch.Tensor, max_steps: int = 60, lin_tol: float = 0.005, ang_tol: float = 0.05, min_steps: int = 3) -> int:
-    """Step the physics of ``env`` (ManiSkill ``BaseEnv``; batched ``hold_action`` as the controller target) until every actor moves slower than the tolerances.
-
-    Returns:
-        Control steps taken.
-    """
-    for k in range(1, max_steps + 1):
-        env.agent.set_action(hold_action)
-        for _ in range(env._sim_steps_per_control):
-            env.agent.before_simulation_step()
-            env.scene.step()
-        if k < min_steps:
-            continue
-        lin = max((torch.linalg.norm(a.linear_velocity[0]).item() for a in actors), default=0.0)
-        ang = max((torch.linalg.norm(a.angular_velocity[0]).item() for a in actors), default=0.0)
-        if lin < lin_tol and ang < ang_tol:
-            return k
-    return max_steps
 
 
 def object_status(positions: np.ndarray, workspace: WorkspaceSpec, bin_margin: float = 0.01) -> list[str]:

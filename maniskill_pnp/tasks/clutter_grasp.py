@@ -10,14 +10,23 @@ seed; each episode draws ``num_objects`` of them, drops them into the workspace 
 objects not in the episode wait on the floor far from the robot and the cameras. With ``layout=`` the pool is
 exactly the layout's objects, placed at its poses every episode.
 
+Batched: with ManiSkill's GPU simulation (``num_envs > 1``) every sub-scene draws its own clutter from the same
+pool, each env's action is decoded into a primitive program of its own arm (:class:`MotionPrimitives` with
+``env_idx``), and :func:`~maniskill_pnp.planning.lockstep.drive` executes all programs in shared control steps
+(an env whose program is done holds still). The heightmaps of all envs are computed together. On the CPU
+(``num_envs = 1``) the same code runs with one env. Per-env state (:attr:`active`, :attr:`last`, the counters)
+is a list or array indexed by env; ``info`` holds one env's values as scalars, and ``(num_envs,)`` tensors (or
+lists, for text) when there are several.
+
 Subclasses with more primitives (``ClutterGraspSlide-v1``) override the hooks :meth:`ClutterGraspEnv._execute`
-(run the decoded action) and :meth:`ClutterGraspEnv._judge` (reward and success from what it did and the
-heightmaps before and after), and may offer several layouts (:meth:`ClutterGraspEnv._resolve_layouts`).
+(the program of one env's decoded action) and :meth:`ClutterGraspEnv._judge` (reward and success from what it did
+and the heightmaps before and after), and may offer several layouts (:meth:`ClutterGraspEnv._resolve_layouts`).
 """
 
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from dataclasses import replace
 
 import numpy as np
@@ -29,12 +38,14 @@ from mani_skill.agents.robots import Panda
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
+from mani_skill.utils.structs.pose import Pose
 
+from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion, Program, drive
 from maniskill_pnp.planning.primitives import MotionPrimitives, grasp_pose
 from maniskill_pnp.planning.robot import panda_spec
 from maniskill_pnp.tasks.bin import build_bin
-from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_action, register_primitive_env
-from maniskill_pnp.tasks.clutter import density_range, object_status, random_specs, sample_clutter, settle, validate_layout
+from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_actions, register_primitive_env
+from maniskill_pnp.tasks.clutter import density_range, object_status, random_specs, sample_clutter, validate_layout
 from maniskill_pnp.tasks.heightmap import heightmaps_from_sensors
 from maniskill_pnp.tasks.objects import KINDS, ObjectSpec, build_object
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
@@ -76,6 +87,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     """
 
     SUPPORTED_ROBOTS = ["panda"]
+    BATCHED = True
     agent: Panda
     #: Seed of the object library (the pool's shapes, sizes and colours).
     LIBRARY_SEED = 1234
@@ -89,6 +101,9 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     MAX_OBJECT_SPEED = 5.0
     #: Contact force (N) between an object and the gripper at home above which the object rests on the gripper.
     GRIPPER_CONTACT_FORCE = 1e-3
+    #: The settle after dropping the clutter: at least SETTLE_MIN_STEPS, at most SETTLE_MAX_STEPS control steps,
+    #: until every object moves slower than SETTLE_LINEAR m/s and SETTLE_ANGULAR rad/s.
+    SETTLE_MIN_STEPS, SETTLE_MAX_STEPS, SETTLE_LINEAR, SETTLE_ANGULAR = 3, 60, 0.005, 0.05
 
     def __init__(
         self,
@@ -142,8 +157,21 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         s = self.workspace.heightmap_size
         self.action_layout = PixelActionLayout(len(self.PRIMITIVES), self.workspace.num_rotations, s, s)
         self.home_qpos = camera_clear_home()
-        self.prims: MotionPrimitives | None = None
+        self.prims: list[MotionPrimitives] | None = None
         self._episode_ready = False
+        n = int(kwargs.get("num_envs", 1))  # ManiSkill's __init__ resets the envs, so the per-env state comes first
+        #: Per env: the pool indices of the episode's objects, their names and actors.
+        self.active_index: list[list[int]] = [[] for _ in range(n)]
+        self.active: list[list[str]] = [[] for _ in range(n)]
+        self._active_actors: list[list] = [[] for _ in range(n)]
+        #: Per env: what its last action did (the ``info`` fields of the step).
+        self.last: list[dict] = [{} for _ in range(n)]
+        self.layout_index = np.full(n, -1)
+        self.settle_steps = np.zeros(n, dtype=np.int64)
+        self.num_actions = np.zeros(n, dtype=np.int64)
+        self.consecutive_failures = np.zeros(n, dtype=np.int64)
+        self.num_grasps = np.zeros(n, dtype=np.int64)
+        self.num_placed = np.zeros(n, dtype=np.int64)
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
         self._use_discrete_actions(self.action_layout.size)
 
@@ -158,10 +186,10 @@ class ClutterGraspEnv(PrimitiveStepEnv):
 
     @property
     def observation_space(self):
-        s = self.workspace.heightmap_size
+        s, n = self.workspace.heightmap_size, self.num_envs
         return spaces.Dict(
-            color_heightmap=spaces.Box(0, 255, (1, s, s, 3), np.uint8),
-            depth_heightmap=spaces.Box(0.0, self.workspace.max_height, (1, s, s), np.float32),
+            color_heightmap=spaces.Box(0, 255, (n, s, s, 3), np.uint8),
+            depth_heightmap=spaces.Box(0.0, self.workspace.max_height, (n, s, s), np.float32),
         )
 
     # ------------------------------------------------------------------ scene
@@ -192,6 +220,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             self.pool_specs = random_specs(rng, max(self.POOL_SIZE, self.num_objects_range[1]), self.object_kinds)
         self.pool_names = [f"obj_{i}_{spec.kind}" for i, spec in enumerate(self.pool_specs)]
         self.pool = [build_object(self.scene, spec, name, self._park_pose(i)) for i, (spec, name) in enumerate(zip(self.pool_specs, self.pool_names))]
+        self.prims = None  # a new scene (reconfiguration) needs new primitives
 
     def _park_pose(self, i: int) -> sapien.Pose:
         spec = self.pool_specs[i]
@@ -199,105 +228,174 @@ class ClutterGraspEnv(PrimitiveStepEnv):
 
     # ------------------------------------------------------------------ episode
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        envs = [int(e) for e in torch.as_tensor(env_idx).reshape(-1).tolist()]
+        b = len(envs)
         self.table_scene.initialize(env_idx)
-        self.agent.robot.set_qpos(torch.as_tensor(np.concatenate([self.home_qpos, [0.04, 0.04]]), dtype=torch.float32)[None])
-        self.agent.controller.reset()  # controller targets follow the home pose set above
-        rng = np.random.default_rng(int(self._batched_episode_rng[0].randint(2**31)))
-        for i, actor in enumerate(self.pool):
-            actor.set_pose(self._park_pose(i))
-            actor.set_linear_velocity(torch.zeros(1, 3))
-            actor.set_angular_velocity(torch.zeros(1, 3))
-        self.layout_index = -1
-        if self.layouts is not None:
-            self.layout_index = self._choose_layout(rng, options)
-            chosen = self.layout_slots[self.layout_index]
-            poses = [pose for _, pose in self.layouts[self.layout_index]]
-        else:
-            lo, hi = self.num_objects_range
-            n = int(rng.integers(lo, hi + 1))
-            chosen = sorted(rng.choice(len(self.pool), size=n, replace=False).tolist())
-            poses = sample_clutter(rng, [self.pool_specs[i] for i in chosen], self.workspace, self.loosely_packed, self.min_gap)
-        for i, pose in zip(chosen, poses):
-            self.pool[i].set_pose(pose)
-        self.active = [self.pool_names[i] for i in chosen]
-        self._active_actors = [self.pool[i] for i in chosen]
-        hold = torch.as_tensor(np.concatenate([self.home_qpos, [1.0]]), dtype=torch.float32, device=self.device)[None]
-        self.settle_steps = settle(self, self._active_actors, hold)
-        self.num_actions = 0
-        self.consecutive_failures = 0
-        self.num_grasps = 0
-        self.num_placed = 0
-        self.last = dict(grasp_success=False, place_success=False, stage="reset", reason="", action=-1, fault="")
+        qpos = torch.as_tensor(np.concatenate([self.home_qpos, [0.04, 0.04]]), dtype=torch.float32, device=self.device)
+        self.agent.robot.set_qpos(qpos.expand(b, -1))
+        self.agent.controller.reset()  # controller targets of the reset envs follow the home pose set above
+        poses = [[self._park_pose(i)] * b for i in range(len(self.pool))]  # pool index -> pose in each reset env
+        for k, e in enumerate(envs):
+            chosen, placed = self._draw_clutter(e, options)
+            for i, pose in zip(chosen, placed):
+                poses[i][k] = pose
+            self.active_index[e] = chosen
+            self.active[e] = [self.pool_names[i] for i in chosen]
+            self._active_actors[e] = [self.pool[i] for i in chosen]
+            self.num_actions[e] = self.consecutive_failures[e] = self.num_grasps[e] = self.num_placed[e] = 0
+            self.last[e] = self._initial_last()
+        zeros = torch.zeros(b, 3, device=self.device)
+        for actor, actor_poses in zip(self.pool, poses):
+            p = torch.as_tensor(np.stack([pose.p for pose in actor_poses]), dtype=torch.float32, device=self.device)
+            q = torch.as_tensor(np.stack([pose.q for pose in actor_poses]), dtype=torch.float32, device=self.device)
+            actor.set_pose(Pose.create_from_pq(p=p, q=q))
+            actor.set_linear_velocity(zeros)
+            actor.set_angular_velocity(zeros)
+        prims = self._primitives()
+        for e in envs:
+            prims[e].reset()
+        self.settle_steps[envs] = self._settle(envs)
         self._episode_ready = True
-        if self.prims is not None:
-            self.prims.reset()
+
+    def _draw_clutter(self, env: int, options: dict) -> tuple[list[int], list[sapien.Pose]]:
+        """Env ``env``'s episode objects (pool indices) and their drop poses, from its seeded episode RNG."""
+        rng = np.random.default_rng(int(self._batched_episode_rng[env].randint(2**31)))
+        self.layout_index[env] = -1
+        if self.layouts is not None:
+            k = self.layout_index[env] = self._choose_layout(rng, options)
+            return list(self.layout_slots[k]), [pose for _, pose in self.layouts[k]]
+        lo, hi = self.num_objects_range
+        chosen = sorted(rng.choice(len(self.pool), size=int(rng.integers(lo, hi + 1)), replace=False).tolist())
+        return chosen, sample_clutter(rng, [self.pool_specs[i] for i in chosen], self.workspace, self.loosely_packed, self.min_gap)
+
+    def _initial_last(self) -> dict:
+        """The ``last`` entry of an env before its first action."""
+        return dict(grasp_success=False, place_success=False, stage="reset", reason="", action=-1, fault="")
+
+    def _settle(self, envs: list[int]) -> int:
+        """Let the dropped clutter of ``envs`` come to rest, their arms at home and grippers open, the other envs'
+        arms holding; returns the control steps taken."""
+        home = self.home_qpos[None]
+
+        def at_rest(e: int):
+            def test() -> bool:
+                return all(float(torch.linalg.norm(a.linear_velocity[e])) < self.SETTLE_LINEAR
+                           and float(torch.linalg.norm(a.angular_velocity[e])) < self.SETTLE_ANGULAR
+                           for a in self._active_actors[e])
+            return test
+
+        motions = [None] * self.num_envs
+        for e in envs:
+            motions[e] = Motion(home, gripper=1.0, min_steps=self.SETTLE_MIN_STEPS, settle_tol=None, until=at_rest(e),
+                                max_settle=self.SETTLE_MAX_STEPS - self.SETTLE_MIN_STEPS)
+        lockstep = self._lockstep
+        steps0 = lockstep.control_steps
+        with self._all_envs_live():
+            lockstep.run(motions)
+        return lockstep.control_steps - steps0
+
+    @contextmanager
+    def _all_envs_live(self):
+        """Step the whole scene inside ``_initialize_episode``: the poses set so far are applied (GPU simulation)
+        and ManiSkill's reset mask, which limits setters to the envs being reset, is lifted meanwhile."""
+        mask = self.scene._reset_mask
+        self.scene._reset_mask = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
+        if self.gpu_sim_enabled:
+            self.scene._gpu_apply_all()
+            self.scene.px.gpu_update_articulation_kinematics()
+            self.scene._gpu_fetch_all()
+        try:
+            yield
+        finally:
+            self.scene._reset_mask = mask
 
     # ------------------------------------------------------------------ reset and step
-    def _primitives(self) -> MotionPrimitives:
+    def _primitives(self) -> list[MotionPrimitives]:
+        """Each env's motion primitives, all driving one shared :class:`LockstepExecutor`."""
         if self.prims is None:
             arm = replace(panda_spec(), home=self.home_qpos.copy())
-            self.prims = MotionPrimitives(self, arm=arm, static_actors={"table-workspace", "ground", "bin"}, seed=self.planner_seed,
-                                          on_control_step=self._on_control_step)
+            lockstep = LockstepExecutor(self, arm, on_control_step=self._on_control_step)
+            self.prims = [
+                MotionPrimitives(self, arm=arm, static_actors={"table-workspace", "ground", "bin"}, seed=self.planner_seed + e,
+                                 lockstep=lockstep, env_idx=e)
+                for e in range(self.num_envs)
+            ]
         return self.prims
+
+    @property
+    def _lockstep(self) -> LockstepExecutor:
+        return self._primitives()[0].executor.lockstep
 
     def step(self, action):
         if not self._episode_ready:
             raise RuntimeError("call reset() before step()")
-        index = self._check_action(action)
-        primitive, rot, row, col = (int(v) for v in self.action_layout.decode(index))
-        prims = self._primitives()
+        indices = self._check_action(action)
+        lockstep = self._lockstep
         before = self._height
-        t0, sim0 = time.perf_counter(), prims.executor.sim_steps
-        outcome = self._execute(primitive, rot, row, col)
-        home = prims.go_home()
-        if not home.ok:  # one more plan (RRT is randomized) before leaving the arm in the cameras' view
-            outcome["planning_time"] += home.planning_time
-            home = prims.go_home()
+        t0, sim0 = time.perf_counter(), lockstep.sim_steps
+        outcomes = drive(lockstep, [self._action_program(e, index) for e, index in enumerate(indices)])
         t_motion = time.perf_counter() - t0
         self._elapsed_steps += 1
         obs = self.get_obs()
-        reward, success = self._judge(outcome, before, self._height)
-        self.num_actions += 1
-        self.num_grasps += int(outcome["grasp_success"])
-        self.num_placed += int(outcome["place_success"])
-        self.consecutive_failures = 0 if success else self.consecutive_failures + 1
-        outcome["planning_time"] += home.planning_time
-        self.last = dict(outcome, home_ok=bool(home.ok), action=index, pixel=(rot, row, col), time_motion=t_motion,
-                         sim_steps=prims.executor.sim_steps - sim0, fault=self.detect_fault())
+        faults = self.detect_faults()
+        rewards = np.zeros(self.num_envs, dtype=np.float32)
+        for e, (index, outcome) in enumerate(zip(indices, outcomes)):
+            rewards[e], success = self._judge(e, outcome, before[e], self._height[e])
+            self.num_actions[e] += 1
+            self.num_grasps[e] += int(outcome["grasp_success"])
+            self.num_placed[e] += int(outcome["place_success"])
+            self.consecutive_failures[e] = 0 if success else self.consecutive_failures[e] + 1
+            self.last[e] = dict(outcome, action=index, time_motion=t_motion, sim_steps=lockstep.sim_steps - sim0,
+                                fault=faults[e])
         info = self.get_info()
         info["time_render"], info["time_heightmap"] = self._t_render, self._t_heightmap
-        terminated = torch.tensor([info["objects_remaining"] == 0], device=self.device)
-        truncated = torch.tensor(
-            [not terminated.item() and (self.consecutive_failures >= self.max_consecutive_failures or self.num_actions >= self.max_actions
-                                        or bool(self.last["fault"]))],
-            device=self.device,
-        )
+        remaining = np.array([self._status(e).count("workspace") for e in range(self.num_envs)])
+        terminated = remaining == 0
+        truncated = ~terminated & ((self.consecutive_failures >= self.max_consecutive_failures)
+                                   | (self.num_actions >= self.max_actions) | np.array([bool(f) for f in faults]))
         self._last_obs = obs
-        return obs, torch.tensor([reward], dtype=torch.float32, device=self.device), terminated, truncated, info
+        return (obs, torch.as_tensor(rewards, device=self.device), torch.as_tensor(terminated, device=self.device),
+                torch.as_tensor(truncated, device=self.device), info)
+
+    def _action_program(self, env: int, index: int) -> Program:
+        """Env ``env``'s whole step as one program: the decoded action (:meth:`_execute`), then the way home (planned
+        a second time if the first plan fails, before leaving the arm in the cameras' view)."""
+        primitive, rot, row, col = (int(v) for v in self.action_layout.decode(index))
+        prims = self.prims[env]
+        outcome = yield from self._execute(env, primitive, rot, row, col)
+        home = yield from prims.program("go_home")
+        if not home.ok:  # RRT is randomized: one more plan
+            outcome["planning_time"] += home.planning_time
+            home = yield from prims.program("go_home")
+        outcome["planning_time"] += home.planning_time
+        return dict(outcome, home_ok=bool(home.ok), pixel=(rot, row, col))
 
     @property
     def step_timings(self) -> dict:
         """Where the last step's time went, in seconds: ``render`` and ``heightmap`` of its closing observation,
-        ``planning`` (IK, RRT-Connect, time parameterization), ``motion`` (the primitive and the way home, planning
-        included), and its ``sim_steps`` (physics steps)."""
-        last = getattr(self, "last", {})
-        return dict(render=self._t_render, heightmap=self._t_heightmap, planning=float(last.get("planning_time", 0.0)),
+        ``planning`` (IK, RRT-Connect, time parameterization; summed over the envs, which plan one after another),
+        ``motion`` (the primitives of all envs and their way home, planning included), and its ``sim_steps``
+        (physics steps, shared by the envs)."""
+        last = self.last[0]
+        return dict(render=self._t_render, heightmap=self._t_heightmap,
+                    planning=float(sum(entry.get("planning_time", 0.0) for entry in self.last)),
                     motion=float(last.get("time_motion", 0.0)), sim_steps=int(last.get("sim_steps", 0)))
 
-    def _execute(self, primitive: int, rot: int, row: int, col: int) -> dict:
-        """Run the decoded action (the arm is left where the primitive ends; ``step`` sends it home).
+    def _execute(self, env: int, primitive: int, rot: int, row: int, col: int) -> Program:
+        """The program of env ``env``'s decoded action (the arm is left where the primitive ends; the step's program
+        goes on home).
 
-        Returns:
+        Returns (as the program's return value):
             Info fields of the step; at least ``grasp_success``, ``place_success``, ``stage``, ``reason`` and
             ``planning_time``.
         """
-        return self._grasp_at(rot, row, col)
+        return (yield from self._grasp_at(env, rot, row, col))
 
-    def _judge(self, outcome: dict, height_before: np.ndarray, height_after: np.ndarray) -> tuple[float, bool]:
-        """Reward of the step and whether it counts as a success (a failure extends the run of failures).
+    def _judge(self, env: int, outcome: dict, height_before: np.ndarray, height_after: np.ndarray) -> tuple[float, bool]:
+        """Reward of env ``env``'s step and whether it counts as a success (a failure extends the run of failures).
 
-        ``outcome`` is what :meth:`_execute` returned (a subclass may add fields to it); the heightmaps are those
-        seen before and after the action.
+        ``outcome`` is what :meth:`_execute` returned (a subclass may add fields to it); the heightmaps are the env's
+        before and after the action.
         """
         grasped, placed = outcome["grasp_success"], outcome["place_success"]
         r = self.rewards
@@ -308,38 +406,40 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         """Reward per outcome: ``place`` (the object landed in the bin), ``grasp`` (grasped but not placed)."""
         return {"place": 1.0, "grasp": 0.5}
 
-    def _grasp_at(self, rot: int, row: int, col: int) -> dict:
-        """Grasp top-down at pixel ``(row, col)`` with rotation ``rot``; place a grasped object in the bin."""
-        prims = self._primitives()
-        surface = float(self._height[row, col])
+    def _grasp_at(self, env: int, rot: int, row: int, col: int) -> Program:
+        """Program: grasp top-down at pixel ``(row, col)`` of env ``env`` with rotation ``rot``; place a grasped
+        object in the bin."""
+        prims = self.prims[env]
+        surface = float(self._height[env][row, col])
         xyz = self.workspace.pixel_to_world(row, col, 0.0)
         xyz[2] = self.workspace.grasp_tcp_height(surface)
         yaw = float(self.workspace.rotation_to_yaw(rot))
-        pick = prims.pick(grasp_pose(xyz, yaw), target=None, candidates=self._in_workspace())
+        pick = yield from prims.program("pick", grasp_pose(xyz, yaw), target=None, candidates=self._in_workspace(env))
         placed, place_stage, place_reason, planning_time = False, "", "", pick.planning_time
         if pick.grasped:
-            place = prims.place(self.workspace.bin.region())
+            place = yield from prims.program("place", self.workspace.bin.region())
             placed, place_stage, place_reason = place.placed, place.stage, place.reason
             planning_time += place.planning_time
             if not placed:
                 # Carrying failed (object still held) or it had not come to rest yet: open wide, wait, look again.
-                prims.executor.gripper(1.0, self.RELEASE_STEPS)
+                yield Motion(gripper=1.0, min_steps=self.RELEASE_STEPS, settle_tol=None)
                 prims.held = None
-                placed = self._status()[self.active.index(pick.held)] == "bin"
+                placed = self._status(env)[self.active[env].index(pick.held)] == "bin"
         return dict(
             grasp_success=bool(pick.grasped), place_success=bool(placed), stage=pick.stage, reason=pick.reason,
             place_stage=place_stage, place_reason=place_reason, grasp_position=[float(v) for v in xyz], grasp_yaw=yaw,
             planning_time=planning_time,
         )
 
-    def _check_action(self, action) -> int:
-        """The action as an int in the valid range; ValueError naming the range otherwise (before anything moves)."""
+    def _check_action(self, action) -> list[int]:
+        """Each env's action as an int in the valid range; ValueError naming the range otherwise (before anything
+        moves)."""
         n = self.action_layout.size
         if len(self.PRIMITIVES) > 1:
             grid = f"(primitive, rotation, row, col) = {self.action_layout.shape}, primitives {self.PRIMITIVES}"
         else:
             grid = f"(rotation, row, col) = {self.action_layout.shape[1:]}"
-        return parse_discrete_action(action, n, f"one integer flat index in 0..{n - 1} over {grid}")
+        return parse_discrete_actions(action, self.num_envs, n, f"one integer flat index in 0..{n - 1} over {grid}")
 
     # ------------------------------------------------------------------ layouts
     def _resolve_layouts(self, layout) -> list[list[tuple[ObjectSpec, sapien.Pose]]] | None:
@@ -363,36 +463,47 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             raise ValueError(f"layout_index must be an int in 0..{n - 1}, got {k!r}")
         return int(k)
 
-    def detect_fault(self) -> str:
-        """Why the episode cannot go on ("" when it can), checked after every action with the arm at home:
+    def detect_faults(self) -> list[str]:
+        """Per env, why its episode cannot go on ("" when it can), checked after every action with the arms at home:
 
         * a physics blow-up: an object with a non-finite pose or velocity, or faster than :attr:`MAX_OBJECT_SPEED`;
         * an object resting on the gripper (in contact with a finger or the hand at the home pose), which would
           make every later plan start in collision.
 
-        ``step`` puts the reason in ``info["fault"]`` and truncates the episode; objects thrown out of the workspace
-        are counted in ``info["lost_objects"]`` as usual.
+        ``step`` puts the reason in ``info["fault"]`` and truncates that env's episode; objects thrown out of the
+        workspace are counted in ``info["lost_objects"]`` as usual. Each pool object in play in some env is read
+        once for all envs.
         """
-        for name, actor in zip(self.active, self._active_actors):
-            p, v = actor.pose.p[0], actor.linear_velocity[0]
-            if not (torch.isfinite(p).all() and torch.isfinite(v).all()) or float(v.norm()) > self.MAX_OBJECT_SPEED:
-                return f"physics blow-up: {name} at {p.tolist()} moving at {float(v.norm()):.3g} m/s"
+        faults = [""] * self.num_envs
+        used = sorted({i for index in self.active_index for i in index})
+        pose = {i: self.pool[i].pose.p for i in used}
+        vel = {i: self.pool[i].linear_velocity for i in used}
+        for e in range(self.num_envs):
+            for i in self.active_index[e]:
+                p, v = pose[i][e], vel[i][e]
+                if not (torch.isfinite(p).all() and torch.isfinite(v).all()) or float(v.norm()) > self.MAX_OBJECT_SPEED:
+                    faults[e] = f"physics blow-up: {self.pool_names[i]} at {p.tolist()} moving at {float(v.norm()):.3g} m/s"
+                    break
         links = (self.agent.finger1_link, self.agent.finger2_link, self.agent.robot.links_map["panda_hand"])
-        for name, actor in zip(self.active, self._active_actors):
+        for i in used:
             for link in links:
-                if float(self.scene.get_pairwise_contact_forces(link, actor).norm()) > self.GRIPPER_CONTACT_FORCE:
-                    return f"{name} rests on the gripper ({link.name}) at the home pose"
-        return ""
+                force = self.scene.get_pairwise_contact_forces(link, self.pool[i]).norm(dim=-1).reshape(-1)
+                for e in range(self.num_envs):
+                    if not faults[e] and i in self.active_index[e] and float(force[e]) > self.GRIPPER_CONTACT_FORCE:
+                        faults[e] = f"{self.pool_names[i]} rests on the gripper ({link.name}) at the home pose"
+        return faults
 
     # ------------------------------------------------------------------ observation, evaluation, reward
-    def _in_workspace(self) -> list[str]:
+    def _in_workspace(self, env: int) -> list[str]:
+        """Names of env ``env``'s objects still in the workspace."""
         if not self._episode_ready:
             return []
-        status = self._status()
-        return [name for name, s in zip(self.active, status) if s == "workspace"]
+        return [name for name, s in zip(self.active[env], self._status(env)) if s == "workspace"]
 
-    def _status(self) -> list[str]:
-        pos = np.stack([a.pose.p[0].cpu().numpy() for a in self._active_actors]) if self._active_actors else np.zeros((0, 3))
+    def _status(self, env: int) -> list[str]:
+        """Where each of env ``env``'s objects is (:func:`~maniskill_pnp.tasks.clutter.object_status`)."""
+        actors = self._active_actors[env]
+        pos = np.stack([a.pose.p[env].cpu().numpy() for a in actors]) if actors else np.zeros((0, 3))
         return object_status(pos, self.workspace)
 
     def get_obs(self, info: dict | None = None, unflattened: bool = False):
@@ -407,7 +518,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         t1 = time.perf_counter()
         color, height = heightmaps_from_sensors(data, params, self.workspace)
         self._t_render, self._t_heightmap = t1 - t0, time.perf_counter() - t1
-        self._height = height[0].cpu().numpy()
+        self._height = height.cpu().numpy()  # (num_envs, H, W)
         obs = dict(color_heightmap=color, depth_heightmap=height)
         if self.include_camera_data:
             obs["sensor_data"] = data
@@ -417,20 +528,24 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     def evaluate(self):
         if not getattr(self, "_episode_ready", False):
             return {}
-        status = self._status()
+        return batch_infos([self._env_info(e) for e in range(self.num_envs)], self.device)
+
+    def _env_info(self, env: int) -> dict:
+        """Env ``env``'s ``info`` fields: the episode's counts, then what its last action did."""
+        status = self._status(env)
         remaining = status.count("workspace")
         return dict(
-            success=torch.tensor([remaining == 0], device=self.device),
+            success=remaining == 0,
             objects_remaining=remaining,
             objects_in_bin=status.count("bin"),
             lost_objects=status.count("lost"),
-            num_objects=len(self.active),
-            num_actions=self.num_actions,
-            num_grasps=self.num_grasps,
-            consecutive_failures=self.consecutive_failures,
-            settle_steps=self.settle_steps,
-            layout_index=self.layout_index,
-            **self.last,
+            num_objects=len(self.active[env]),
+            num_actions=int(self.num_actions[env]),
+            num_grasps=int(self.num_grasps[env]),
+            consecutive_failures=int(self.consecutive_failures[env]),
+            settle_steps=int(self.settle_steps[env]),
+            layout_index=int(self.layout_index[env]),
+            **self.last[env],
         )
 
     def compute_dense_reward(self, obs, action, info):
@@ -438,6 +553,19 @@ class ClutterGraspEnv(PrimitiveStepEnv):
 
     def compute_normalized_dense_reward(self, obs, action, info):
         return self.compute_dense_reward(obs, action, info)
+
+
+def batch_infos(infos: list[dict], device) -> dict:
+    """One ``info`` from the per-env ones: one env's values as they are (``success`` as a ``(1,)`` tensor, as ManiSkill
+    has it); for several envs, each key's values as a ``(num_envs,)`` tensor when they are all numbers, else a list."""
+    if len(infos) == 1:
+        return dict(infos[0], success=torch.tensor([infos[0]["success"]], device=device))
+    out = {}
+    for key in infos[0]:
+        values = [info.get(key) for info in infos]
+        numeric = all(isinstance(v, (bool, int, float, np.integer, np.floating)) for v in values)
+        out[key] = torch.tensor(values, device=device) if numeric else values
+    return out
 
 
 def _shared_pool(layouts) -> tuple[list[ObjectSpec], list[list[int]]]:

@@ -115,6 +115,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
             raise ValueError(f"complicated_index must be an int in 0..{n - 1} ({list(COMPLICATED_LAYOUT_NAMES)}), got {complicated_index!r}")
         self.reward_scheme = reward_scheme
         self.complicated_index = None if complicated_index is None else int(complicated_index)
+        self._lost_before = np.zeros(int(kwargs.get("num_envs", 1)), dtype=np.int64)  # per env, before its action
         super().__init__(*args, num_objects=num_objects, loosely_packed=loosely_packed, layout=layout, **kwargs)
 
     @property
@@ -136,35 +137,39 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         return super()._choose_layout(rng, options)
 
     # ------------------------------------------------------------------ episode and step
-    def _initialize_episode(self, env_idx, options):
-        super()._initialize_episode(env_idx, options)
-        self.last.update(primitive="", primitive_index=-1, slide_changed=False, changed_pixels=0, knocked_out=0)
+    def _initial_last(self):
+        return dict(super()._initial_last(), primitive="", primitive_index=-1, slide_changed=False, changed_pixels=0,
+                    knocked_out=0)
 
-    def _execute(self, primitive, rot, row, col):
+    def _execute(self, env, primitive, rot, row, col):
         name = self.PRIMITIVES[primitive]
-        self._lost_before = self._status().count("lost")
-        out = self._grasp_at(rot, row, col) if name == "grasp" else self._slide_at(name.removesuffix("_slide"), rot, row, col)
+        self._lost_before[env] = self._status(env).count("lost")
+        if name == "grasp":
+            out = yield from self._grasp_at(env, rot, row, col)
+        else:
+            out = yield from self._slide_at(env, name.removesuffix("_slide"), rot, row, col)
         return dict(out, primitive=name, primitive_index=primitive)
 
-    def _slide_at(self, side: str, rot: int, row: int, col: int) -> dict:
-        """Push the closed fingertips ``slide_length`` from pixel ``(row, col)`` to ``side`` of rotation ``rot``."""
+    def _slide_at(self, env: int, side: str, rot: int, row: int, col: int):
+        """Program: push env ``env``'s closed fingertips ``slide_length`` from pixel ``(row, col)`` to ``side`` of
+        rotation ``rot``."""
         ws = self.workspace
         start = ws.pixel_to_world(row, col, 0.0)
-        start[2] = ws.slide_tip_height(self._height, row, col)
+        start[2] = ws.slide_tip_height(self._height[env], row, col)
         direction = ws.slide_direction(rot, side)
-        res = self._primitives().slide(start, direction, ws.slide_length)
+        res = yield from self.prims[env].program("slide", start, direction, ws.slide_length)
         return dict(
             grasp_success=False, place_success=False, stage=res.stage, reason=res.reason, place_stage="", place_reason="",
             slide_start=[float(v) for v in start], slide_direction=[float(v) for v in direction], planning_time=res.planning_time,
         )
 
-    def _judge(self, outcome, height_before, height_after):
+    def _judge(self, env, outcome, height_before, height_after):
         if outcome["primitive"] == "grasp":
             outcome.update(slide_changed=False, changed_pixels=0, knocked_out=0)
-            return super()._judge(outcome, height_before, height_after)
+            return super()._judge(env, outcome, height_before, height_after)
         n = changed_pixels(height_before, height_after)
         changed = n > change_threshold(*height_before.shape)
-        knocked_out = self._status().count("lost") - self._lost_before
+        knocked_out = self._status(env).count("lost") - self._lost_before[env]
         outcome.update(slide_changed=changed, changed_pixels=n, knocked_out=knocked_out)
         if knocked_out > 0:  # pushing objects off the workspace is no progress: no reward, and it counts as a failure
             outcome["reason"] = f"the slide knocked {knocked_out} object(s) out of the workspace"

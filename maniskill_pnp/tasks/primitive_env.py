@@ -38,6 +38,29 @@ def parse_discrete_action(action, n: int, valid: str) -> int:
     return index
 
 
+def parse_discrete_actions(action, num_envs: int, n: int, valid: str) -> list[int]:
+    """One integer index in ``0..n-1`` per env: as :func:`parse_discrete_action` for one env, else an array or
+    tensor of shape ``(num_envs,)`` (or ``(num_envs, 1)``).
+
+    Raises:
+        ValueError: naming the env whose action is invalid, or the expected shape; raised before anything moves.
+    """
+    if num_envs == 1:
+        return [parse_discrete_action(action, n, valid)]
+    a = action.detach().cpu().numpy() if isinstance(action, torch.Tensor) else np.asarray(action)
+    if a.shape not in ((num_envs,), (num_envs, 1)):
+        raise ValueError(f"action must be one index per env, shape ({num_envs},), each {valid}; got shape {a.shape}")
+    if a.dtype == np.bool_ or not np.issubdtype(a.dtype, np.integer):
+        raise ValueError(f"action must be integer indices, each {valid}; got dtype {a.dtype}")
+    out = []
+    for i, x in enumerate(a.reshape(num_envs)):
+        try:
+            out.append(parse_discrete_action(x, n, valid))
+        except ValueError as e:
+            raise ValueError(f"env {i}: {e}") from None
+    return out
+
+
 class PrimitiveTimeLimit(TimeLimitWrapper):
     """ManiSkill's time limit, except that a truncation the task reports itself is kept.
 
@@ -71,19 +94,37 @@ def register_primitive_env(uid: str, max_episode_steps: int | None = None, **kwa
 
 
 class PrimitiveStepEnv(BaseEnv):
-    """A ManiSkill task whose step executes a whole primitive chosen by one Discrete action.
+    """A ManiSkill task whose step executes a whole primitive chosen by one Discrete action per env.
 
-    It runs one env (primitives of parallel envs do not run in lockstep yet) in the ``pd_joint_pos`` control mode
-    the primitives drive; other values raise a ValueError before the scene is built.
+    It runs in the ``pd_joint_pos`` control mode the primitives drive; other values raise a ValueError before the
+    scene is built. A task whose step runs the primitives of all envs in lockstep
+    (:func:`~maniskill_pnp.planning.lockstep.drive`) sets :attr:`BATCHED`; the others run one env.
     """
+
+    #: Whether the task runs ``num_envs > 1`` (ManiSkill's GPU simulation; its CPU simulation has one env).
+    BATCHED = False
 
     def __init__(self, *args, **kwargs):
         name = type(self).__name__
-        if kwargs.get("num_envs", 1) != 1:
-            raise ValueError(f"{name} runs one env (one whole primitive per step); got num_envs={kwargs['num_envs']}")
+        num_envs = kwargs.get("num_envs", 1)
+        if num_envs != 1 and not self.BATCHED:
+            raise ValueError(f"{name} runs one env (one whole primitive per step); got num_envs={num_envs}")
+        if num_envs != 1:
+            backend = kwargs.get("sim_backend", "auto")
+            if backend in ("cpu", "physx_cpu") or (backend == "auto" and not torch.cuda.is_available()):
+                raise ValueError(
+                    f"{name} with num_envs={num_envs} needs ManiSkill's GPU simulation (sim_backend='physx_cuda' on a "
+                    f"CUDA GPU; its CPU simulation runs one env); got sim_backend={backend!r}"
+                    + ("" if torch.cuda.is_available() else " and no CUDA GPU")
+                )
         kwargs.setdefault("control_mode", "pd_joint_pos")
         if kwargs["control_mode"] != "pd_joint_pos":
             raise ValueError(f"{name} needs control_mode='pd_joint_pos', got {kwargs['control_mode']!r}")
+        # ManiSkill defines this after the first reset of its __init__, but a control step (BaseEnv._step_action,
+        # which the primitives' executor takes) reads it, and a task may step inside that reset (a settling
+        # clutter). The executor's actions are always batched, so a shape-() space is right until then; after it,
+        # _use_discrete_actions sets the same.
+        self._orig_single_action_space = spaces.Discrete(1)
         super().__init__(*args, **kwargs)
 
     _control_step_callback = None
