@@ -405,7 +405,7 @@ def _time_decisions(ccfg, steps: int, seed: int, **backend) -> dict:
         td = td_next
     env.close()
     timed = times[1:]  # the first step builds the planners and allocates the render buffers
-    return dict(num_envs=int(n), steps=steps, seconds=sum(timed), decisions_per_s=n * steps / sum(timed), **backend)
+    return {**backend, "num_envs": int(n), "steps": steps, "seconds": sum(timed), "decisions_per_s": n * steps / sum(timed)}
 
 
 def run_batched_decisions(cfg: BatchedDecisionsBenchConfig) -> dict:
