@@ -87,13 +87,19 @@ def test_plan_around_wall_is_collision_free_in_checker_and_simulator(wall_env):
     assert np.max(np.abs(prims.executor.qpos() - b.q)) < 0.02
 
 
-def test_plan_cache_reuses_only_in_the_same_scene(wall_env):
-    prims = _prims(wall_env)
-    prims.world.sync_scene(wall_env.unwrapped.scene)
+def _either_side_of_the_wall(env):
+    """Primitives synced to the wall scene, and IK goals in front of the wall's two sides."""
+    prims = _prims(env)
+    prims.world.sync_scene(env.unwrapped.scene)
     q_home = prims.executor.qpos()
     down = prims.kin.fk(q_home).q
     a = prims.kin.ik(sapien.Pose(p=[0.15, -0.2, 0.08], q=down), q_home).q
     b = prims.kin.ik(sapien.Pose(p=[0.15, 0.2, 0.08], q=down), q_home).q
+    return prims, a, b
+
+
+def test_plan_cache_reuses_only_in_the_same_scene(wall_env):
+    prims, a, b = _either_side_of_the_wall(wall_env)
     first = prims.planner.plan(a, b)
     again = prims.planner.plan(a, b)
     assert first.ok and again.cached and np.array_equal(first.path, again.path)
@@ -102,6 +108,25 @@ def test_plan_cache_reuses_only_in_the_same_scene(wall_env):
     prims.world.sync_scene(wall_env.unwrapped.scene)
     moved = prims.planner.plan(a, b)
     assert moved.ok and not moved.cached
+
+
+def test_planner_falls_back_to_the_raw_path_when_the_simplified_one_fails_the_final_check(wall_env, monkeypatch):
+    # About one simplified path in ten hugs the wall so closely that the final dense check, which samples the
+    # motion at other points than OMPL did, finds a contact. Reject the first (simplified) path to force that case.
+    prims, a, b = _either_side_of_the_wall(wall_env)
+    prims.planner.cache = None
+    world = prims.world
+    checked, real_check = [], world.path_valid
+
+    def first_path_grazes(path, *args, **kwargs):
+        checked.append(len(path))
+        return len(checked) > 1 and real_check(path, *args, **kwargs)
+
+    monkeypatch.setattr(world, "path_valid", first_path_grazes)
+    res = prims.planner.plan(a, b)
+    assert res.ok, res.reason
+    assert len(checked) == 2 and checked[1] >= checked[0], "the second path checked is the raw, unsimplified one"
+    assert len(res.path) == checked[1] and real_check(res.path)
 
 
 def test_plan_cache_is_bounded():

@@ -106,7 +106,7 @@ class JointSpacePlanner:
         resolution: float = 0.004,
         simplify_time: float = 0.2,
         cache: PlanCache | None | str = "default",
-        attempts: int = 2,
+        attempts: int = 3,
         seed: int | None = 0,
     ):
         from ompl import base as ob
@@ -190,13 +190,21 @@ class JointSpacePlanner:
         ss.solve(budget)
         if not ss.haveExactSolutionPath():  # solve() is truthy for approximate solutions too
             return None, f"RRT-Connect found no collision-free path in {budget:.1f} s"
+        raw = self._solution(q_start, q_goal)
         ss.simplifySolution(self._simplify_time)
-        states = ss.getSolutionPath().getStates()
+        # OMPL and the final dense check sample a motion at different points, so a path that grazes an obstacle
+        # can pass one and fail the other; the simplifier's shortcuts are the usual culprits. The raw RRT-Connect
+        # path is then the fallback before a new search.
+        for path in (self._solution(q_start, q_goal), raw):
+            if self.world.path_valid(path):
+                return path, ""
+        return None, "both the simplified and the raw RRT-Connect path failed the final collision check"
+
+    def _solution(self, q_start: np.ndarray, q_goal: np.ndarray) -> np.ndarray:
+        states = self._setup.getSolutionPath().getStates()
         path = np.array([[s[i] for i in range(self._dof)] for s in states], dtype=np.float64)
         path[0], path[-1] = q_start, q_goal
-        if not self.world.path_valid(path):
-            return None, "simplified path failed the final collision check"
-        return path, ""
+        return path
 
 
 _OMPL_SEEDED: list[int] = []  # OMPL's RNG is process-global: remember whether it was seeded
