@@ -132,21 +132,22 @@ print("observation space:", env.observation_space, "-", conveyor.num_states, "st
 print("action space:     ", env.action_space, "- valid actions per phase:", conveyor.num_actions)
 state = int(obs.reshape(-1)[0])
 print("state id", state, "=", conveyor.decode_state(state))
-print("info:", {k: info[k] for k in ("phase", "sensed_speed", "sensed_alignment", "valid_actions", "outcome")})
+print("info:", {k: info[k] for k in ("phase", "sensed_speed", "sensed_alignment", "action_mask", "outcome")})
 print("hidden truth:", info["truth"])
 assert conveyor.decode_state(state)["phase"] == info["phase"] == "initial"
 assert env.unwrapped.single_observation_space.n == conveyor.num_states
 '''),
     md('''
-An action that is not valid in the current phase raises a `ValueError` before anything moves (the agents mask
-them, see `agents/tabular.py: StateActionMask`):
+An action that is not valid in the current phase (`info["action_mask"]` says which are) is a failed attempt: nothing
+moves, the failure reward, `info["invalid_action"]`, and the episode ends (the agents mask invalid actions out, see
+`agents/tabular/qtable.py: StateActionMask`). A new episode from the same seed follows:
 '''),
     code('''
-try:
-    env.step(5)  # the initial phase has one action: 0 (wait and sense)
-    raise AssertionError("an invalid action was accepted")
-except ValueError as e:
-    print("ValueError:", e)
+obs, reward, terminated, truncated, info = env.step(5)  # the initial phase has one action: 0 (wait and sense)
+print(f"reward {reward.item()}, terminated {bool(terminated.item())}, invalid_action {bool(info['invalid_action'])}: "
+      f"{info['outcome']}")
+assert info["invalid_action"] and terminated.item()
+obs, info = env.reset(seed=0)
 '''),
     md('''
 One episode with the hand-marked best coordinates for the sensed lane and speed (`ConveyorSpec.oracle_action`, the
@@ -261,8 +262,9 @@ obs, reward, terminated, truncated, info = env.step(choice.action)
 print(f"reward {reward.item()} | grasp_success {info['grasp_success']} | place_success {info['place_success']}")
 print(f"stage {info['stage']!r}, reason {info['reason']!r}")
 print(f"objects remaining {info['objects_remaining']}, in bin {info['objects_in_bin']}, lost {info['lost_objects']}")
-print(f"planning {info['planning_time']:.2f} s, motion incl. planning {info['time_motion']:.2f} s, "
-      f"render {info['time_render']:.2f} s, heightmap fusion {info['time_heightmap']:.3f} s")
+timings = task.step_timings  # wall-clock times stay out of info, which is deterministic
+print(f"planning {timings['planning']:.2f} s, motion incl. planning {timings['motion']:.2f} s, "
+      f"render {timings['render']:.2f} s, heightmap fusion {timings['heightmap']:.3f} s")
 assert info["num_actions"] == 1 and reward.item() in (0.0, 0.5, 1.0)
 assert info["objects_remaining"] + info["objects_in_bin"] + info["lost_objects"] == info["num_objects"]
 
@@ -296,14 +298,14 @@ obs, info = env.reset(seed=0)
 task = env.unwrapped
 ws = task.workspace
 print("action space:", env.action_space, "=", dict(zip(("primitive", "rotation", "row", "col"), task.action_layout.shape)))
-print("primitives:", task.PRIMITIVES, "| rewards:", task.rewards)
+print("primitives:", task.primitive_names, "| rewards:", task.rewards)
 
 before = obs["depth_heightmap"][0].cpu().numpy()
 size = ws.heightmap_size
 centre = before[size // 4: 3 * size // 4, size // 4: 3 * size // 4]
 row, col = np.array(np.unravel_index(int(centre.argmax()), centre.shape)) + size // 4  # the tallest object there
 start_row = max(0, row - int(round(0.04 / ws.pixel_size)))  # rows grow with world y: 4 cm towards -y
-action = task.action_layout.encode(task.PRIMITIVES.index("left_slide"), 0, int(start_row), int(col))
+action = task.action_layout.encode(task.primitive_names.index("left_slide"), 0, int(start_row), int(col))
 print(f"slide from pixel ({start_row}, {col}) towards +y, through the object at ({row}, {col}), "
       f"push direction {ws.slide_direction(0, 'left')}")
 obs, reward, terminated, truncated, info = env.step(action)
@@ -366,8 +368,8 @@ LOG_INTERVAL = 6 if SMALL else 30  # steps between two points of the learning cu
 import numpy as np
 import torch
 
-from maniskill_pnp.agents.conveyor_eval import EvalConfig, read_curve, run as evaluate
-from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, load_qtable, main as train
+from maniskill_pnp.agents.tabular.evaluate import EvalConfig, read_curve, run as evaluate
+from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, load_qtable, main as train
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, SPEEDS, ConveyorSpec
 ''' + SHOW),
     md('''
@@ -504,7 +506,7 @@ a target network). An action mask keeps grasps on pixels where the heightmap sho
 The `cpu-small` preset (`ClutterConfig.from_preset("cpu-small")`) is sized for 2 CPU cores: a small ResNet-18 trunk,
 4 rotations, 64×64 heightmaps of a 44.8 cm workspace, 10 objects. The thesis preset (`thesis`) is DenseNet-121,
 16 rotations, 224 px: a GPU job. This notebook shows the network's maps, runs a very short training run with
-`clutter_recipe.main` (`maniskill-pnp train-clutter`) and evaluates it with `clutter_eval.run`
+`recipe.main` (`maniskill-pnp train-clutter`) and evaluates it with `evaluate.run`
 (`maniskill-pnp eval-clutter`). A short run does not learn much: it shows the pipeline, not the learned figures.
 '''),
     setup_cell("03_pixel_grasp_agent", '''
@@ -518,10 +520,12 @@ import dataclasses
 import numpy as np
 import torch
 
-from maniskill_pnp.agents.clutter_curves import plot_training_curves
-from maniskill_pnp.agents.clutter_eval import ClutterEvalConfig, decide, plot_q_heatmaps, run as evaluate
-from maniskill_pnp.agents.clutter_recipe import ClutterConfig, main as train, make_action_mask, make_env, make_model
-from maniskill_pnp.agents.pixel_policy import GreedyPixelActor
+from maniskill_pnp.agents.pixel.config import ClutterConfig
+from maniskill_pnp.agents.pixel.curves import plot_training_curves
+from maniskill_pnp.agents.pixel.evaluate import ClutterEvalConfig, decide, plot_q_heatmaps, run as evaluate
+from maniskill_pnp.agents.pixel.factories import make_action_mask, make_env, make_model
+from maniskill_pnp.agents.pixel.policy import GreedyPixelActor
+from maniskill_pnp.agents.pixel.recipe import main as train
 
 torch.manual_seed(0)
 DEVICE = torch.device("cpu")
@@ -537,7 +541,7 @@ print("run folder:", cfg.run_dir)
     md('''
 ## The task through the recipe
 
-`clutter_recipe.make_env(cfg)` is `ClutterGrasp-v1` with the config's workspace (64 px, 4 rotations) as a TorchRL
+`factories.make_env(cfg)` is `ClutterGrasp-v1` with the config's workspace (64 px, 4 rotations) as a TorchRL
 env (`make_torchrl_env`); `.maniskill_env` is the gymnasium env underneath.
 '''),
     code('''
@@ -569,8 +573,8 @@ show(fig, "heightmaps")
 ## Q maps of an untrained network
 
 `make_model(cfg)` builds one pixel Q network per primitive (here only `grasp`): `(N, 4, H, W) -> (N, P, R, H, W)`.
-`clutter_eval.decide` runs the greedy actor (masked argmax) on one observation and returns the chosen flat action
-with the maps; `clutter_eval.plot_q_heatmaps` is the figure `eval-clutter` writes (every rotation on one colour
+`evaluate.decide` runs the greedy actor (masked argmax) on one observation and returns the chosen flat action
+with the maps; `evaluate.plot_q_heatmaps` is the figure `eval-clutter` writes (every rotation on one colour
 scale, the chosen action marked).
 '''),
     code('''
@@ -591,7 +595,7 @@ env.close()
     md('''
 ## A short training run
 
-`clutter_recipe.main(cfg)` is `maniskill-pnp train-clutter`: ε-greedy actions through a TorchRL `Collector`, every
+`recipe.main(cfg)` is `maniskill-pnp train-clutter`: ε-greedy actions through a TorchRL `Collector`, every
 transition into a prioritized replay, one SGD step per action, a checkpoint (model, optimizer, replay) at the end,
 and `actions.csv` with one row per action.
 '''),
@@ -609,8 +613,8 @@ display(Image(filename=str(OUT / "training_curves.png")))
     md('''
 ## Greedy evaluation
 
-`clutter_eval.run` reloads the checkpoint, plays seeded scenes greedily (seed 1000 on: apart from the training
-seeds) and writes the DESIGN.md metrics per scenario (Table IX layout), a per-episode CSV and the Q-map figure of
+`evaluate.run` reloads the checkpoint, plays seeded scenes greedily (seed 1000 on: apart from the training
+seeds) and writes the metrics of `docs/metrics.md` per scenario (Table IX layout), a per-episode CSV and the Q-map figure of
 the first state.
 '''),
     code('''
@@ -658,9 +662,10 @@ import numpy as np
 import torch
 
 import maniskill_pnp  # noqa: F401  (registers the task ids)
-from maniskill_pnp.agents.clutter_eval import decide, plot_q_heatmaps
-from maniskill_pnp.agents.clutter_recipe import ClutterConfig, make_action_mask, make_env, make_model
-from maniskill_pnp.agents.pixel_policy import GreedyPixelActor
+from maniskill_pnp.agents.pixel.config import ClutterConfig
+from maniskill_pnp.agents.pixel.evaluate import decide, plot_q_heatmaps
+from maniskill_pnp.agents.pixel.factories import make_action_mask, make_env, make_model
+from maniskill_pnp.agents.pixel.policy import GreedyPixelActor
 from maniskill_pnp.runtime import default_backends
 from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
 
@@ -730,7 +735,7 @@ render0 = env.render()[0].cpu().numpy()
 
 def grasp_action(xyz, rotation: int) -> int:
     row, col = ws.world_to_pixel(np.asarray(xyz))
-    return task.action_layout.encode(task.PRIMITIVES.index("grasp"), rotation, int(row), int(col))
+    return task.action_layout.encode(task.primitive_names.index("grasp"), rotation, int(row), int(col))
 
 
 for i in CENTRE_GRASPS:
@@ -753,7 +758,7 @@ obs, info = env.reset(seed=0, options={"layout_index": K})
 before = obs["depth_heightmap"][0].cpu().numpy()
 start = bars[2] + [0.014, -0.065, 0.0]
 row, col = ws.world_to_pixel(start)
-slide = task.action_layout.encode(task.PRIMITIVES.index("left_slide"), 0, int(row), int(col))
+slide = task.action_layout.encode(task.primitive_names.index("left_slide"), 0, int(row), int(col))
 obs, reward, terminated, truncated, info = env.step(slide)
 after = obs["depth_heightmap"][0].cpu().numpy()
 print(f"left slide -> reward {reward.item()}, slide_changed {info['slide_changed']} ({info['changed_pixels']} pixels)")
@@ -763,7 +768,7 @@ new = (after > 0.01) & (before <= 0.01)  # pixels the slide moved material onto
 rows, cols = np.nonzero(new)
 nearest = int(np.argmin((rows - rows.mean()) ** 2 + (cols - cols.mean()) ** 2))
 g_row, g_col = int(rows[nearest]), int(cols[nearest])
-grasp = task.action_layout.encode(task.PRIMITIVES.index("grasp"), 0, g_row, g_col)
+grasp = task.action_layout.encode(task.primitive_names.index("grasp"), 0, g_row, g_col)
 obs, reward, terminated, truncated, info = env.step(grasp)
 print(f"grasp at pixel ({g_row}, {g_col}) -> reward {reward.item()}, grasp_success {info['grasp_success']}, "
       f"place_success {info['place_success']}, objects remaining {info['objects_remaining']}")
@@ -792,7 +797,7 @@ The `gs-cpu-small` preset is the G&S agent sized for a CPU: three small-trunk FC
 4 rotations, 64 px. It acts by the argmax over all three primitives' maps, under the action mask (grasps on material,
 slides from bare table towards material within half a slide). Here the networks are untrained, so its choices are arbitrary; the point is the
 interface: the per-primitive Q maps and what each step did. Training it is
-`maniskill-pnp train-clutter --preset gs-cpu-small` (`clutter_recipe.main`), evaluating it on these layouts
+`maniskill-pnp train-clutter --preset gs-cpu-small` (`recipe.main`), evaluating it on these layouts
 `maniskill-pnp eval-clutter <run> --scenarios complicated`.
 '''),
     code('''

@@ -4,6 +4,7 @@ Importing the package registers its tasks with ManiSkill and gymnasium (``gym.ma
 """
 
 from maniskill_pnp import tasks  # noqa: F401  (registers the task ids)
+from maniskill_pnp.gym_env import make_gym_env  # noqa: F401
 
 # TorchRL integration, exported lazily so that importing `maniskill_pnp` (e.g. for
 # planning) does not pay for importing torchrl.

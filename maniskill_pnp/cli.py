@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import types
+import typing
 from pathlib import Path
 
 
 def _demo(args) -> None:
     from maniskill_pnp.demo import DemoConfig, run_demo
 
-    summary = run_demo(DemoConfig(out=args.out, seed=args.seed))
+    cfg = DemoConfig(**_config_values(args, DemoConfig))
+    summary = run_demo(cfg)
     print(json.dumps({k: summary[k] for k in ("success", "sim_steps", "planning_time_s", "wall_time_s_incl_rendering")}, indent=2))
-    print(f"video: {summary['video']}\nimage strip: {summary['strip']}\nsummary: {args.out / 'summary.json'}")
+    print(f"video: {summary['video']}\nimage strip: {summary['strip']}\nsummary: {cfg.out / 'summary.json'}")
     if not summary["success"]:
         raise SystemExit("demo pick-and-place failed: " + json.dumps(summary["stages"]))
 
@@ -24,7 +28,7 @@ def _quickstart(args) -> None:
 
 
 def _export_clutter(args) -> None:
-    from maniskill_pnp.agents.clutter_recipe import checkpoint_file, export_weights
+    from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file, export_weights
 
     try:
         path = export_weights(checkpoint_file(args.checkpoint), args.out, half=args.half)
@@ -91,104 +95,55 @@ def _bench_scale(args) -> None:
     run(cfg)
 
 
+#: The sizing options of ``bench pixel-memory`` and ``bench decision-cost`` (fields of their configs; ``warmup`` is
+#: soak's too).
+PIXEL_BENCH_OPTIONS = ("backbone", "num_rotations", "heightmap_size", "num_primitives", "repeats", "warmup", "device",
+                       "threads", "max_rss_gb")
+
+
 def _bench_pixel_dqn(args) -> None:
     """pixel-memory and decision-cost: the size options given on the command line override the configs' defaults."""
     from maniskill_pnp.bench import pixel_dqn
 
-    given = dict(backbone=args.backbone, num_rotations=args.rotations, heightmap_size=args.heightmap_size,
-                 repeats=args.repeats, device=args.device, threads=args.threads)
-    given = {k: v for k, v in given.items() if v is not None}
+    memory = args.which == "pixel-memory"
+    config = pixel_dqn.PixelMemoryBenchConfig if memory else pixel_dqn.DecisionCostBenchConfig
     try:
-        if args.which == "pixel-memory":
-            if args.num_primitives is not None and len(args.num_primitives) != 1:
-                raise ValueError(f"pixel-memory measures one network: give one --num-primitives, got {args.num_primitives}")
-            extra = dict(num_primitives=args.num_primitives[0]) if args.num_primitives else {}
-            if args.max_rss_gb is not None:
-                extra["max_rss_gb"] = args.max_rss_gb
-            cfg = pixel_dqn.PixelMemoryBenchConfig(**given, **extra, out=args.out / "pixel_memory.json")
-            run = pixel_dqn.run_pixel_memory
-        else:
-            extra = dict(num_primitives=tuple(args.num_primitives)) if args.num_primitives else {}
-            if args.warmup is not None:
-                extra["warmup"] = args.warmup
-            cfg = pixel_dqn.DecisionCostBenchConfig(**given, **extra, out=args.out / "decision_cost.json")
-            run = pixel_dqn.run_decision_cost
+        given = _config_values(args, config, only=PIXEL_BENCH_OPTIONS, given_only=True)
+        if memory and "num_primitives" in given:
+            if len(given["num_primitives"]) != 1:
+                raise ValueError(f"pixel-memory measures one network: give one --num-primitives, got {given['num_primitives']}")
+            given["num_primitives"] = given["num_primitives"][0]
+        cfg = config(**given, out=args.out / ("pixel_memory.json" if memory else "decision_cost.json"))
     except ValueError as e:
         raise SystemExit(f"bench {args.which}: {e}") from e
-    run(cfg)
-
-
-def _add_pixel_bench_args(bench: argparse.ArgumentParser) -> None:
-    """The size options of ``bench pixel-memory`` and ``bench decision-cost``; defaults shown from their configs."""
-    import dataclasses
-
-    from maniskill_pnp.agents.pixel_fcn import BACKBONES
-    from maniskill_pnp.bench.pixel_dqn import DecisionCostBenchConfig, PixelMemoryBenchConfig
-
-    mem = {f.name: f.default for f in dataclasses.fields(PixelMemoryBenchConfig)}
-    dec = {f.name: f.default for f in dataclasses.fields(DecisionCostBenchConfig)}
-    pixel = "pixel-memory, decision-cost: "
-
-    def default(name: str) -> str:
-        if mem.get(name) == dec.get(name) or name not in mem or name not in dec:
-            return f"(default: {mem.get(name, dec.get(name))})"
-        return f"(default: {mem[name]} / {dec[name]})"
-
-    bench.add_argument("--backbone", choices=sorted(BACKBONES), default=None,
-                       help=pixel + "trunk of the Q networks; pixel-memory takes densenet121 only " + default("backbone"))
-    bench.add_argument("--rotations", type=int, default=None, help=pixel + "rotations per primitive " + default("num_rotations"))
-    bench.add_argument("--heightmap-size", type=int, default=None,
-                       help=pixel + "heightmap pixels per side " + default("heightmap_size"))
-    bench.add_argument("--num-primitives", type=int, nargs="+", default=None,
-                       help=pixel + "network sizes, each the first N of grasp, left_slide, right_slide; pixel-memory takes "
-                       "one N, decision-cost one or more " + default("num_primitives"))
-    bench.add_argument("--repeats", type=int, default=None,
-                       help=pixel + "training steps per variant / timed decisions and trunk passes " + default("repeats"))
-    bench.add_argument("--warmup", type=int, default=None, help="decision-cost: untimed warm-up rounds " + default("warmup")
-                       + "; soak: actions before the memory baseline (default: 200)")
-    bench.add_argument("--device", default=None, help=pixel + "torch device; auto: CUDA when available " + default("device"))
-    bench.add_argument("--threads", type=int, default=None,
-                       help=pixel + "CPU threads of torch; 1 keeps timings steady while other jobs share the cores "
-                       "(default: torch's own)")
-    bench.add_argument("--max-rss-gb", type=float, default=None,
-                       help="pixel-memory: kill a variant whose resident memory passes this many GiB and report it as "
-                       "exceeded (default: 90%% of the memory available at the start)")
+    (pixel_dqn.run_pixel_memory if memory else pixel_dqn.run_decision_cost)(cfg)
 
 
 def _train_conveyor(args) -> None:
-    from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, main
+    from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, main
 
-    fields = {f: getattr(args, f) for f in _conveyor_fields()}
     try:
-        summary = main(ConveyorConfig(**fields))
+        summary = main(ConveyorConfig(**_config_values(args, ConveyorConfig)))
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"train-conveyor: {e}") from e
     print(json.dumps(summary, indent=2))
 
 
 def _eval_conveyor(args) -> None:
-    from maniskill_pnp.agents.conveyor_eval import EvalConfig, run
-
-    try:
-        run(EvalConfig(checkpoints=tuple(args.checkpoints), iterations=args.iterations, category_iterations=args.category_iterations,
-                       out=args.out, seed=args.seed, curves=tuple(args.curves or ())))
-    except (FileNotFoundError, ValueError) as e:
-        raise SystemExit(f"eval-conveyor: {e}") from e
+    _run_job(args, "maniskill_pnp.agents.tabular.evaluate", "EvalConfig", "eval-conveyor")
 
 
 def _train_clutter(args) -> None:
-    import dataclasses
+    from maniskill_pnp.agents.pixel.config import ClutterConfig
+    from maniskill_pnp.agents.pixel.recipe import main
 
-    from maniskill_pnp.agents.clutter_recipe import ClutterConfig, main
-
-    overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(ClutterConfig)
-                 if f.name != "preset" and getattr(args, f.name, None) is not None}
     try:
         values = ClutterConfig.values_from_file(args.config) if args.config else {}
-        preset = args.preset or values.pop("preset", "cpu-small")
+        preset = args.preset or values.get("preset", "cpu-small")
         values.pop("preset", None)
-        cfg = ClutterConfig.from_preset(preset, **{**values, **overrides})
-        summary = main(cfg)
+        overrides = _config_values(args, ClutterConfig, given_only=True)
+        overrides.pop("preset", None)
+        summary = main(ClutterConfig.from_preset(preset, **{**values, **overrides}))
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"train-clutter: {e}") from e
     print(json.dumps(summary, indent=2))
@@ -197,25 +152,24 @@ def _train_clutter(args) -> None:
 def _run_job(args, module: str, config: str, command: str) -> dict:
     """Build the dataclass ``config`` of ``module`` from the parsed options and call the module's ``run``; a missing
     file or a bad value ends the command with one line naming the problem."""
-    import dataclasses
     import importlib
 
     mod = importlib.import_module(module)
     cls = getattr(mod, config)
     try:
-        return mod.run(cls(**{f.name: getattr(args, f.name) for f in dataclasses.fields(cls)}))
+        return mod.run(cls(**_config_values(args, cls)))
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"{command}: {e}") from e
 
 
 def _eval_clutter(args) -> None:
-    summary = _run_job(args, "maniskill_pnp.agents.clutter_eval", "ClutterEvalConfig", "eval-clutter")
+    summary = _run_job(args, "maniskill_pnp.agents.pixel.evaluate", "ClutterEvalConfig", "eval-clutter")
     print(json.dumps(summary["metrics"], indent=2))
     print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
 
 
 def _plot_clutter(args) -> None:
-    from maniskill_pnp.agents.clutter_curves import plot_training_curves
+    from maniskill_pnp.agents.pixel.curves import plot_training_curves
 
     labels = args.labels or [r.name for r in args.runs]
     if len(labels) != len(args.runs):
@@ -228,107 +182,121 @@ def _plot_clutter(args) -> None:
     print(f"curves: {args.out}")
 
 
-def _add_config_args(parser: argparse.ArgumentParser, config_cls) -> None:
-    """One option per field of the config dataclass ``config_cls`` (a ``checkpoint`` field becomes the positional
-    argument); help = field docstring. Used by the commands that _run_job runs."""
-    import dataclasses
-
-    from maniskill_pnp.agents.run_io import field_docs
-
-    docs = field_docs(config_cls)
-    if any(f.name == "checkpoint" for f in dataclasses.fields(config_cls)):
-        parser.add_argument("checkpoint", type=Path, help=docs["checkpoint"])
-    for f in dataclasses.fields(config_cls):
-        if f.name == "checkpoint":
-            continue
-        help_text = docs[f.name].replace("%", "%%") + " (default: %(default)s)"
-        flag = "--" + f.name.replace("_", "-")
-        if f.name == "scenarios":
-            parser.add_argument(flag, nargs="+", default=list(f.default), help=help_text)
-        elif isinstance(f.default, bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default, help=help_text)
-        else:
-            optional = str if "str" in str(f.type) else int  # a None default: the annotation says the type
-            kind = Path if f.name == "out" else optional if f.default is None else type(f.default)
-            parser.add_argument(flag, type=kind, default=f.default, help=help_text)
-
-
 def _record_conveyor(args) -> None:
-    summary = _run_job(args, "maniskill_pnp.agents.conveyor_video", "ConveyorVideoConfig", "record-conveyor")
+    summary = _run_job(args, "maniskill_pnp.agents.tabular.video", "ConveyorVideoConfig", "record-conveyor")
     steps = ", ".join(f"{d['phase']} -> {d['action']}" for d in summary["decisions"])
     print(f"{steps}; placed: {summary['placed']}; {summary['frames']} frames")
     print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
 
 
 def _record_clutter(args) -> None:
-    summary = _run_job(args, "maniskill_pnp.agents.clutter_video", "ClutterVideoConfig", "record-clutter")
+    summary = _run_job(args, "maniskill_pnp.agents.pixel.video", "ClutterVideoConfig", "record-clutter")
     print(f"{len(summary['decisions'])} decisions, {summary['placed']} of {summary['objects']} objects placed, "
           f"{summary['frames']} frames")
     print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
 
 
-def _add_clutter_train_args(parser: argparse.ArgumentParser) -> None:
-    """``--preset`` and one option per ClutterConfig field (default: the preset's value); help = field docstring."""
-    import dataclasses
+# ----------------------------------------------------------------------------- options from config dataclasses
+def add_config_options(parser: argparse.ArgumentParser, configs, *, only=None, skip=(), positional=(), flags=None,
+                       choices=None, unset: str | bool = False) -> None:
+    """One option per field of a config dataclass: how every config-driven command gets its options.
 
-    from maniskill_pnp.agents.clutter_recipe import LOSSES, OPTIMIZERS, PRESETS, TASKS, ClutterConfig
-    from maniskill_pnp.agents.run_io import LOGGERS, field_docs
-    from maniskill_pnp.agents.pixel_fcn import BACKBONES
+    The option of field ``name`` is ``--name-with-dashes`` (or ``--`` + ``flags[name]``), stored as ``args.name``; its
+    help is the field's description (:func:`~maniskill_pnp.agents.run_io.field_docs`); its form follows the field's
+    annotation: a ``bool`` is an on/off switch (``--x`` / ``--no-x``), a ``tuple[T, ...]`` takes several values
+    (``nargs="+"``, or ``"*"`` when the default is empty), ``T | None`` takes a ``T``. A field without a default, or
+    named in ``positional``, is a positional argument.
 
-    docs = field_docs(ClutterConfig)
-    parser.add_argument("--preset", choices=list(PRESETS), default=None,
-                        help=docs["preset"] + " (default: the config file's, else cpu-small)")
-    parser.add_argument("--config", type=Path, default=None,
-                        help="YAML or JSON file of config fields (e.g. a run's config.json); the preset's values, then "
-                        "the file's, then the options given here")
-    for f in dataclasses.fields(ClutterConfig):
-        if f.name == "preset":
+    Args:
+        configs: The config dataclass, or ``{label: dataclass}`` when the options feed several configs (the fields of
+            one name share one option, whose help gives each config's text and default after its label).
+        only, skip: The fields to offer (default: all; with several configs, a collection or ``{label: fields}``) /
+            to leave out.
+        flags: ``{field: flag name}`` for options named otherwise than their field.
+        choices: ``{field: valid values}`` (checked by argparse, listed in the help).
+        unset: False: an option left out gives the field's default (shown in the help). True, or a text: every
+            option defaults to None, so only the options given override what else supplies the values (a preset, a
+            file, the config's own default); the help shows the configs' defaults, or the text (e.g. "the preset's
+            value").
+    """
+    from maniskill_pnp.agents.run_io import field_docs
+
+    labelled = configs if isinstance(configs, dict) else {None: configs}
+    options: dict[str, list] = {}  # field name -> [(label, field, annotation, description)], in the configs' order
+    for label, cls in labelled.items():
+        docs, hints = field_docs(cls), typing.get_type_hints(cls)
+        wanted = only.get(label) if isinstance(only, dict) else only
+        for f in dataclasses.fields(cls):
+            if (wanted is None or f.name in wanted) and f.name not in skip:
+                options.setdefault(f.name, []).append((label, f, hints[f.name], docs.get(f.name, "")))
+    for name, entries in options.items():
+        kind, many = _option_type([hint for _, _, hint, _ in entries])
+        first = entries[0][1]
+        has_default = first.default is not dataclasses.MISSING or first.default_factory is not dataclasses.MISSING
+        default = _field_default(first) if has_default else None
+        positional_arg = not has_default or name in positional
+        kwargs = dict(choices=(choices or {}).get(name))
+        if kind is bool:
+            kwargs = dict(action=argparse.BooleanOptionalAction)
+        else:
+            kwargs["type"] = kind
+            if many:
+                kwargs["nargs"] = "*" if not positional_arg and not default else "+"
+        if positional_arg:
+            parser.add_argument(name, help=_escape(entries[0][3]), **kwargs)
             continue
-        flag = "--" + f.name.replace("_", "-")
-        help_text = docs.get(f.name, "").replace("%", "%%") + " (default: the preset's value)"
-        if isinstance(f.default, bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=None, help=help_text)
-        elif f.name == "out":
-            parser.add_argument(flag, type=Path, default=None, help=help_text)
-        elif f.name == "pretrained_path":
-            parser.add_argument(flag, type=str, default=None, help=help_text)
-        elif f.name == "explore_weights":
-            parser.add_argument(flag, type=float, nargs="+", default=None, help=help_text)
+        if unset is False:
+            value = list(default) if isinstance(default, tuple) else default
+            shown = "%(default)s"
         else:
-            choices = dict(backbone=sorted(BACKBONES), task=list(TASKS), loss=list(LOSSES), optimizer=list(OPTIMIZERS),
-                           reward_scheme=["default", "no_slide_reward"], logger=list(LOGGERS)).get(f.name)
-            parser.add_argument(flag, type=type(f.default), choices=choices, default=None, help=help_text)
+            value = None
+            shown = unset if isinstance(unset, str) else ""
+        flag = (flags or {}).get(name, name)
+        if flag != name and kind is not bool:
+            kwargs["metavar"] = flag.upper()
+        parser.add_argument("--" + flag.replace("_", "-"), dest=name, default=value, help=_help_text(entries, shown),
+                            **kwargs)
 
 
-def _conveyor_fields() -> list[str]:
-    from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig
-    import dataclasses
+def _option_type(hints: list) -> tuple[type, bool]:
+    """The value type of an option whose fields are annotated ``hints``, and whether it takes several values."""
+    kind, many = None, False
+    for hint in hints:
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        if typing.get_origin(hint) in (typing.Union, types.UnionType):
+            hint, args = args[0], list(typing.get_args(args[0]))
+        if typing.get_origin(hint) is tuple:
+            hint, many = args[0], True
+        kind = kind or hint
+    return kind, many
 
-    return [f.name for f in dataclasses.fields(ConveyorConfig)]
+
+def _field_default(f: dataclasses.Field):
+    return f.default_factory() if f.default is dataclasses.MISSING else f.default
 
 
-def _add_conveyor_train_args(parser: argparse.ArgumentParser) -> None:
-    """One option per ConveyorConfig field; the help text is the field's docstring."""
-    import dataclasses
+def _escape(text: str) -> str:
+    return text.replace("%", "%%")
 
-    from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig
-    from maniskill_pnp.agents.run_io import LOGGERS, field_docs
-    from maniskill_pnp.agents.tabular import ALGORITHMS
-    from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, REWARD_SCHEMES, SPEEDS
 
-    choices = dict(algorithm=ALGORITHMS, reward_scheme=REWARD_SCHEMES, alignment=ALIGNMENTS, speed=SPEEDS, logger=LOGGERS)
-    docs = field_docs(ConveyorConfig)
-    for f in dataclasses.fields(ConveyorConfig):
-        flag = "--" + f.name.replace("_", "-")
-        help_text = docs.get(f.name, "").replace("%", "%%") + " (default: %(default)s)"
-        if f.name == "object_kinds":
-            parser.add_argument(flag, nargs="+", choices=OBJECT_KINDS, default=list(f.default), help=help_text)
-        elif f.name in ("alignment", "speed"):
-            parser.add_argument(flag, choices=choices[f.name], default=None, help=help_text)
-        elif f.name == "out":
-            parser.add_argument(flag, type=Path, default=f.default, help=help_text)
-        else:
-            parser.add_argument(flag, type=type(f.default), choices=choices.get(f.name), default=f.default, help=help_text)
+def _help_text(entries: list, shown: str | None) -> str:
+    """The help of one option: each config's description and default (``shown``, or "" for the field's own), the
+    configs with the same text and default under one label list."""
+    parts: dict[tuple[str, str], list] = {}
+    for label, f, _, doc in entries:
+        default = _escape(str(_field_default(f))) if shown == "" else shown
+        parts.setdefault((_escape(doc), default), []).append(label)
+    texts = [(f"{', '.join(labels)}: " if labels != [None] else "") + doc + (f" (default: {default})" if default else "")
+             for (doc, default), labels in parts.items()]
+    return "; ".join(texts)
+
+
+def _config_values(args, config, *, only=None, given_only: bool = False) -> dict:
+    """The values of ``config``'s fields among the parsed options (only those given, with ``given_only``)."""
+    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(config)
+              if hasattr(args, f.name) and (only is None or f.name in only)}
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}  # several values: the fields' tuples
+    return {k: v for k, v in values.items() if v is not None} if given_only else values
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -336,15 +304,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="plan and execute a pick-and-place of a cube with OMPL; save a video and image strip")
-    demo.add_argument("--out", type=Path, default=Path("runs/demo"), help="output folder (default: %(default)s)")
-    demo.add_argument("--seed", type=int, default=0, help="episode seed: cube position and yaw (default: %(default)s)")
+    from maniskill_pnp.demo import DemoConfig
+
+    add_config_options(demo, DemoConfig)
     demo.set_defaults(func=_demo)
 
     quick = sub.add_parser("quickstart", help="the README's main job: train and evaluate the conveyor Q-learning agent, "
                            "then film one ClutterGraspSlide-v1 episode of the bundled gs-cpu-small agent (~10 min on 2 cores)")
     from maniskill_pnp.quickstart import QuickstartConfig
 
-    _add_config_args(quick, QuickstartConfig)
+    add_config_options(quick, QuickstartConfig)
     quick.set_defaults(func=_quickstart)
 
     bench = sub.add_parser("bench", help="run a benchmark; prints numbers and writes JSON")
@@ -381,47 +350,60 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--num-envs", type=int, nargs="+", default=[1, 16],
                        help="batched-decisions: env counts run on the GPU (default: 1 16)")
     bench.add_argument("--iterations", type=int, default=50, help="conveyor: iterations per random test case (default: %(default)s)")
-    _add_pixel_bench_args(bench)
+    from maniskill_pnp.agents.pixel.config import CHOICES as CLUTTER_CHOICES, ClutterConfig, presets
+    from maniskill_pnp.bench.pixel_dqn import DecisionCostBenchConfig, PixelMemoryBenchConfig
+    from maniskill_pnp.bench.soak import SoakBenchConfig
+
+    add_config_options(bench, {"pixel-memory": PixelMemoryBenchConfig, "decision-cost": DecisionCostBenchConfig,
+                               "soak": SoakBenchConfig},
+                       only={"pixel-memory": PIXEL_BENCH_OPTIONS, "decision-cost": PIXEL_BENCH_OPTIONS, "soak": ("warmup",)},
+                       flags=dict(num_rotations="rotations"), choices=dict(backbone=CLUTTER_CHOICES["backbone"]), unset=True)
     bench.set_defaults(func=_bench)
 
     train = sub.add_parser("train-conveyor", help="train tabular Q-learning or SARSA on ConveyorProximity-v1 (thesis ch. 4)")
-    _add_conveyor_train_args(train)
+    from maniskill_pnp.agents.run_io import LOGGERS
+    from maniskill_pnp.agents.tabular.qtable import ALGORITHMS
+    from maniskill_pnp.agents.tabular.recipe import ConveyorConfig
+    from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, REWARD_SCHEMES, SPEEDS
+
+    add_config_options(train, ConveyorConfig, choices=dict(algorithm=ALGORITHMS, reward_scheme=REWARD_SCHEMES, alignment=ALIGNMENTS,
+                                                           speed=SPEEDS, object_kinds=OBJECT_KINDS, logger=LOGGERS))
     train.set_defaults(func=_train_conveyor)
 
     clutter = sub.add_parser("train-clutter", help="train a pixelwise DQN agent: grasping on ClutterGrasp-v1 (thesis part II, "
                              "presets cpu-small, thesis) or G&S on ClutterGraspSlide-v1 (part III, presets gs-*)")
-    _add_clutter_train_args(clutter)
+    add_config_options(clutter, ClutterConfig, only=("preset",), choices=dict(preset=list(presets())),
+                       unset="the config file's, else cpu-small")
+    clutter.add_argument("--config", type=Path, default=None,
+                         help="YAML or JSON file of config fields (e.g. a run's config.json); the preset's values, then "
+                         "the file's, then the options given here")
+    add_config_options(clutter, ClutterConfig, skip=("preset",), choices=CLUTTER_CHOICES, unset="the preset's value")
     clutter.set_defaults(func=_train_clutter)
 
     ev = sub.add_parser("eval-conveyor", help="greedy evaluation of saved conveyor Q-tables: per-category tables, random test cases 1-5, curves")
-    ev.add_argument("checkpoints", nargs="+", type=Path, help="qtable.pt files (or run folders holding one) to evaluate")
-    ev.add_argument("--iterations", type=int, default=50, help="episodes per random test case (default: %(default)s)")
-    ev.add_argument("--category-iterations", type=int, default=0,
-                    help="episodes per (object kind, alignment, speed) cell of the per-category tables; 0 skips them (default: %(default)s)")
-    ev.add_argument("--out", type=Path, default=Path("runs/conveyor_eval"), help="folder for tables (Markdown, CSV, JSON) and plots (default: %(default)s)")
-    ev.add_argument("--seed", type=int, default=12345, help="seed of the test-case draws and episodes (default: %(default)s)")
-    ev.add_argument("--curves", nargs="*", type=Path,
-                    help="run folders whose CSV logs to plot as learning curves (default: the checkpoints' run folders)")
+    from maniskill_pnp.agents.tabular.evaluate import EvalConfig
+
+    add_config_options(ev, EvalConfig, positional=("checkpoints",))
     ev.set_defaults(func=_eval_conveyor)
 
-    evc = sub.add_parser("eval-clutter", help="greedy evaluation of a clutter DQN checkpoint per scenario: DESIGN.md metrics, "
-                         "Table IX (Markdown, CSV), Q-map figure")
-    from maniskill_pnp.agents.clutter_eval import ClutterEvalConfig
-    from maniskill_pnp.agents.clutter_video import ClutterVideoConfig
+    evc = sub.add_parser("eval-clutter", help="greedy evaluation of a clutter DQN checkpoint per scenario: success rate, "
+                         "grasp success, completion, action efficiency; Table IX (Markdown, CSV), Q-map figure")
+    from maniskill_pnp.agents.pixel.evaluate import ClutterEvalConfig
+    from maniskill_pnp.agents.pixel.video import ClutterVideoConfig
 
-    _add_config_args(evc, ClutterEvalConfig)
+    add_config_options(evc, ClutterEvalConfig)
     evc.set_defaults(func=_eval_clutter)
 
     rec = sub.add_parser("record-clutter", help="film one greedy episode of a clutter DQN checkpoint: MP4 of the arm's "
                          "motion beside each decision, and a strip of heightmap -> Q map -> action per decision")
-    _add_config_args(rec, ClutterVideoConfig)
+    add_config_options(rec, ClutterVideoConfig)
     rec.set_defaults(func=_record_clutter)
 
-    from maniskill_pnp.agents.conveyor_video import ConveyorVideoConfig
+    from maniskill_pnp.agents.tabular.video import ConveyorVideoConfig
 
     recc = sub.add_parser("record-conveyor", help="film one greedy ConveyorProximity-v1 episode of a saved Q-table: the belt, "
                           "the sensed state and the planned pre-pick, grasp and place, as MP4")
-    _add_config_args(recc, ConveyorVideoConfig)
+    add_config_options(recc, ConveyorVideoConfig)
     recc.set_defaults(func=_record_conveyor)
 
     export = sub.add_parser("export-clutter", help="a shareable agent from a clutter DQN checkpoint: config and network "

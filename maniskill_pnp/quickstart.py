@@ -19,7 +19,7 @@ from pathlib import Path
 from maniskill_pnp.agents.run_io import require_positive, write_json
 
 #: Agents that ship with the package: network weights and config exported from a training run
-#: (:func:`~maniskill_pnp.agents.clutter_recipe.export_weights`); the README says which run and command.
+#: (:func:`~maniskill_pnp.agents.pixel.checkpoint.export_weights`); the README says which run and command.
 BUNDLED_AGENTS = {"gs-cpu-small": Path(__file__).parent / "weights" / "gs-cpu-small.pt"}
 
 
@@ -56,8 +56,9 @@ class QuickstartConfig:
 
 def run(cfg: QuickstartConfig) -> dict:
     """Run the three parts; return (and write to ``quickstart.json``) their numbers and files."""
-    from maniskill_pnp.agents import clutter_video, conveyor_eval
-    from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, main as train_conveyor
+    from maniskill_pnp.agents.pixel.video import ClutterVideoConfig, run as record_clutter
+    from maniskill_pnp.agents.tabular.evaluate import EvalConfig, run as evaluate_conveyor
+    from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, main as train_conveyor
 
     agent = cfg.agent_path  # a missing agent fails before the long parts
     t0 = time.perf_counter()
@@ -67,13 +68,13 @@ def run(cfg: QuickstartConfig) -> dict:
     t1 = time.perf_counter()
 
     print(f"[2/3] greedy evaluation on the random test cases 1-5 ({cfg.eval_iterations} episodes each)", flush=True)
-    evaluation = conveyor_eval.run(conveyor_eval.EvalConfig(
+    evaluation = evaluate_conveyor(EvalConfig(
         checkpoints=(conveyor_cfg.run_dir,), iterations=cfg.eval_iterations, out=cfg.out / "conveyor_eval", seed=12345 + cfg.seed))
     (result,) = evaluation["agents"].values()
     t2 = time.perf_counter()
 
     print(f"[3/3] filming one ClutterGraspSlide-v1 episode of the {cfg.agent} agent", flush=True)
-    video = clutter_video.run(clutter_video.ClutterVideoConfig(
+    video = record_clutter(ClutterVideoConfig(
         checkpoint=agent, scenario=cfg.scenario, seed=1000 + cfg.seed, max_steps=cfg.max_decisions, out=cfg.out / "clutter_video"))
     t3 = time.perf_counter()
 

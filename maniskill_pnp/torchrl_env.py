@@ -56,6 +56,7 @@ from torchrl.data import (
 from torchrl.envs import EnvBase
 
 from maniskill_pnp.runtime import default_backends
+from maniskill_pnp.tasks.primitive_env import OUTCOME_KEYS
 
 __all__ = [
     "ManiSkillTorchRLEnv",
@@ -64,6 +65,9 @@ __all__ = [
 ]
 
 _DONE_KEYS = ("done", "terminated", "truncated")
+#: The ``info`` entries exposed by default (those the task reports): success, the outcome of each env's last
+#: action, and the action mask of a task whose legal actions depend on the state.
+DEFAULT_INFO_KEYS = ("success", *OUTCOME_KEYS, "action_mask")
 
 
 def _torch_dtype(np_dtype: Any) -> torch.dtype:
@@ -202,7 +206,11 @@ class ManiSkillTorchRLEnv(EnvBase):
         info_keys: Names of ManiSkill ``info`` entries to expose as extra
             observation entries. An entry is only exposed if the task reports
             it as a tensor with a leading ``num_envs`` dimension; per-env
-            scalars get shape ``[num_envs, 1]``. Defaults to ``("success",)``.
+            scalars get shape ``[num_envs, 1]``. Defaults to
+            :data:`DEFAULT_INFO_KEYS`: ``success``, the outcome keys of this
+            package's tasks (``grasp_success``, ``place_success``...), and
+            ``action_mask`` (``[num_envs, n]``, a ``Binary`` spec that TorchRL's
+            ``ActionMask`` transform reads) where the task offers one.
         **kwargs: Forwarded to :class:`torchrl.envs.EnvBase` (e.g.
             ``allow_done_after_reset``).
 
@@ -216,7 +224,7 @@ class ManiSkillTorchRLEnv(EnvBase):
         self,
         env: gym.Env,
         *,
-        info_keys: Sequence[str] = ("success",),
+        info_keys: Sequence[str] | None = None,
         **kwargs: Any,
     ) -> None:
         from mani_skill.envs.sapien_env import BaseEnv
@@ -235,7 +243,7 @@ class ManiSkillTorchRLEnv(EnvBase):
         super().__init__(
             device=base.device, batch_size=torch.Size([num_envs]), **kwargs
         )
-        self._make_specs(base, tuple(info_keys))
+        self._make_specs(base, DEFAULT_INFO_KEYS if info_keys is None else tuple(info_keys))
         self.is_closed = False
 
     # ------------------------------------------------------------------ #
@@ -298,7 +306,9 @@ class ManiSkillTorchRLEnv(EnvBase):
                         "pass a different `info_keys`."
                     )
                 shape = batch + (value.shape[1:] if value.ndim > 1 else (1,))
-                if value.dtype == torch.bool:
+                if key == "action_mask":
+                    spec = Binary(n=shape[-1], shape=shape, device=device, dtype=torch.bool)
+                elif value.dtype == torch.bool:
                     spec = Categorical(2, shape=shape, device=device, dtype=torch.bool)
                 else:
                     spec = Unbounded(shape=shape, device=device, dtype=value.dtype)
@@ -481,7 +491,7 @@ def make_torchrl_env(
     env_id: str,
     *,
     device: torch.device | str | None = None,
-    info_keys: Sequence[str] = ("success",),
+    info_keys: Sequence[str] | None = None,
     **make_kwargs: Any,
 ) -> ManiSkillTorchRLEnv:
     """Makes a ManiSkill env with ``gymnasium.make`` and wraps it for TorchRL.

@@ -47,7 +47,8 @@ def wall_env():
 @pytest.fixture(scope="session")
 def tiny_clutter_run(tmp_path_factory):
     """A run folder trained for two grasps: 32 px heightmaps, 2 rotations, 2 objects, the small backbone."""
-    from maniskill_pnp.agents.clutter_recipe import ClutterConfig, main as train
+    from maniskill_pnp.agents.pixel.config import ClutterConfig
+    from maniskill_pnp.agents.pixel.recipe import main as train
 
     out = tmp_path_factory.mktemp("clutter_runs")
     cfg = ClutterConfig.from_preset("cpu-small", heightmap_size=32, num_rotations=2, num_objects=2, steps=2,

@@ -9,10 +9,9 @@ import pytest
 import torch
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
-from maniskill_pnp.tasks.clutter_grasp import batch_infos
 from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
 from maniskill_pnp.tasks.objects import ObjectSpec
-from maniskill_pnp.tasks.primitive_env import parse_discrete_actions
+from maniskill_pnp.tasks.primitive_env import batch_infos, parse_discrete_actions
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
 WS = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=4)
@@ -31,9 +30,10 @@ def test_actions_are_parsed_per_env_and_a_bad_one_is_named():
         parse_discrete_actions(np.array([1.0, 2.0, 0.5]), 3, 10, "0..9")
 
 
-def test_infos_are_scalars_for_one_env_and_tensors_or_lists_for_several():
-    one = batch_infos([dict(success=False, num_actions=2, stage="done")], torch.device("cpu"))
-    assert one["num_actions"] == 2 and one["stage"] == "done" and torch.equal(one["success"], torch.tensor([False]))
+def test_infos_are_tensors_for_any_number_of_envs_and_text_is_listed_for_several():
+    one = batch_infos([dict(success=False, num_actions=2, stage="done", mask=np.array([True, False]))], torch.device("cpu"))
+    assert torch.equal(one["num_actions"], torch.tensor([2])) and torch.equal(one["success"], torch.tensor([False]))
+    assert one["stage"] == "done" and torch.equal(one["mask"], torch.tensor([[True, False]]))
     many = batch_infos([dict(success=s, num_actions=k, stage=st, pixel=(0, k, k))
                         for s, k, st in ((True, 1, "done"), (False, 4, "grasp_check"))], torch.device("cpu"))
     assert torch.equal(many["success"], torch.tensor([True, False]))
@@ -50,12 +50,12 @@ def test_one_cpu_env_runs_the_batched_path():
     base = env.unwrapped
     obs, info = env.reset(seed=0)
     assert len(base.prims) == 1 and base.prims[0].env_idx == 0 and base.prims[0].executor.lockstep.num_envs == 1
-    assert base.active == [[base.pool_names[0]]] and base.settle_steps[0] >= base.SETTLE_MIN_STEPS
+    assert base.clutter.active == [[base.clutter.names[0]]] and base.settle_steps[0] >= base.SETTLE.min_steps
     assert info["settle_steps"] == base.settle_steps[0] and info["stage"] == "reset"
     action = HeightmapGraspOracle(WS)(obs["depth_heightmap"][0])
     _, reward, terminated, truncated, info = env.step(np.array([action]))
     assert reward.shape == terminated.shape == truncated.shape == (1,)
-    assert info["grasp_success"] and info["place_success"] and terminated.item() and info["home_ok"]
+    assert info["grasp_success"].item() and info["place_success"].item() and terminated.item() and info["home_ok"].item()
     assert base.num_actions.tolist() == [1] and base.last[0]["action"] == action
     env.close()
 
@@ -68,8 +68,8 @@ def test_gpu_envs_draw_their_own_clutter_and_grasp_in_lockstep():
     base = env.unwrapped
     obs, info = env.reset(seed=0)
     assert obs["color_heightmap"].shape == (n, 64, 64, 3) and obs["depth_heightmap"].shape == (n, 64, 64)
-    assert len({tuple(names) for names in base.active}) > 1  # each env drew its own clutter
-    assert info["num_objects"].tolist() == [len(names) for names in base.active]
+    assert len({tuple(names) for names in base.clutter.active}) > 1  # each env drew its own clutter
+    assert info["num_objects"].tolist() == [len(names) for names in base.clutter.active]
     assert len(base.prims) == n and len({id(p.executor.lockstep) for p in base.prims}) == 1
     oracle = HeightmapGraspOracle(WS)
     actions = torch.tensor([oracle(obs["depth_heightmap"][e].cpu()) for e in range(n)])
@@ -79,10 +79,10 @@ def test_gpu_envs_draw_their_own_clutter_and_grasp_in_lockstep():
     assert int(info["grasp_success"].sum()) >= n // 2, info["reason"]
     placed = info["objects_in_bin"].tolist()
     assert placed == info["place_success"].long().tolist()
-    kept = [a.pose.p.cpu().numpy() for a in base._active_actors[0]]
+    kept = [a.pose.p.cpu().numpy() for a in base.clutter.active_actors[0]]
     env.reset(options=dict(env_idx=torch.tensor([1], device=base.device)))
     assert base.num_actions.tolist() == [1, 0, 1, 1]  # only env 1 started a new episode
-    after = [a.pose.p.cpu().numpy() for a in base._active_actors[0]]
+    after = [a.pose.p.cpu().numpy() for a in base.clutter.active_actors[0]]
     assert all(np.abs(a[0] - k[0]).max() < 0.01 for a, k in zip(after, kept))  # env 0's objects stayed put
     env.close()
 

@@ -30,11 +30,13 @@ import numpy as np
 import pytest
 import torch
 
-from maniskill_pnp.agents.clutter_eval import EPISODE_COLUMNS, METRICS, SCENARIO_COLUMNS, ClutterEvalConfig
-from maniskill_pnp.agents.clutter_recipe import ACTION_COLUMNS, CHECKPOINT_FORMAT, ClutterConfig
-from maniskill_pnp.agents.clutter_video import ClutterVideoConfig
-from maniskill_pnp.agents.conveyor_video import ConveyorVideoConfig
-from maniskill_pnp.agents.conveyor_recipe import QTABLE_FORMAT, ConveyorConfig
+from maniskill_pnp.agents.pixel.checkpoint import CHECKPOINT_FORMAT
+from maniskill_pnp.agents.pixel.config import ClutterConfig
+from maniskill_pnp.agents.pixel.evaluate import EPISODE_COLUMNS, METRICS, SCENARIO_COLUMNS, ClutterEvalConfig
+from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS
+from maniskill_pnp.agents.pixel.video import ClutterVideoConfig
+from maniskill_pnp.agents.tabular.video import ConveyorVideoConfig
+from maniskill_pnp.agents.tabular.recipe import QTABLE_FORMAT, ConveyorConfig
 from maniskill_pnp.quickstart import QuickstartConfig
 
 #: Commands run side by side: one per core of the 2-core CI machine (each command is single-threaded here).

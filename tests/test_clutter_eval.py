@@ -7,8 +7,9 @@ import json
 import matplotlib.image
 import pytest
 
-from maniskill_pnp.agents.clutter_eval import METRICS, ClutterEvalConfig, run
-from maniskill_pnp.agents.clutter_recipe import ClutterConfig, main as train
+from maniskill_pnp.agents.pixel.config import ClutterConfig
+from maniskill_pnp.agents.pixel.evaluate import METRICS, ClutterEvalConfig, run
+from maniskill_pnp.agents.pixel.recipe import main as train
 from maniskill_pnp.cli import main as cli
 
 
@@ -84,7 +85,7 @@ def test_record_clutter_films_the_arm_beside_each_decision(tiny_clutter_run, tmp
     the strip has one row per decision; the JSON lists the decisions with their outcomes."""
     import imageio.v3 as iio
 
-    from maniskill_pnp.agents.clutter_video import PANEL, ClutterVideoConfig, run as record
+    from maniskill_pnp.agents.pixel.video import PANEL, ClutterVideoConfig, run as record
 
     out = tmp_path / "video"
     summary = record(ClutterVideoConfig(checkpoint=tiny_clutter_run, max_steps=2, frame_every=4, out=out))
@@ -105,7 +106,7 @@ def test_record_clutter_films_the_arm_beside_each_decision(tiny_clutter_run, tmp
 
 
 def test_record_clutter_errors_name_the_problem(tmp_path):
-    from maniskill_pnp.agents.clutter_video import ClutterVideoConfig
+    from maniskill_pnp.agents.pixel.video import ClutterVideoConfig
 
     with pytest.raises(ValueError, match="unknown scenario 'dense'"):
         ClutterVideoConfig(checkpoint=tmp_path, scenario="dense")
@@ -118,7 +119,8 @@ def test_record_clutter_errors_name_the_problem(tmp_path):
 def test_decide_never_picks_an_excluded_action(tiny_clutter_run):
     import torch
 
-    from maniskill_pnp.agents.clutter_eval import decide, load_policy
+    from maniskill_pnp.agents.pixel.evaluate import decide
+    from maniskill_pnp.agents.pixel.factories import load_policy
 
     actor, cfg, _ = load_policy(tiny_clutter_run, torch.device("cpu"))
     s = cfg.heightmap_size

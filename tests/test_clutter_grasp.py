@@ -8,7 +8,7 @@ import pytest
 import torch
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
-from maniskill_pnp.tasks import TASK_IDS, ClutterGraspEnv
+from maniskill_pnp.tasks import OUTCOME_KEYS, TASK_IDS, ClutterGraspEnv
 from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
 from maniskill_pnp.tasks.objects import ObjectSpec
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
@@ -37,10 +37,10 @@ def test_reset_gives_heightmaps_and_is_reproducible(env):
     assert obs["depth_heightmap"].shape == (1, 224, 224) and obs["depth_heightmap"].dtype == torch.float32
     assert env.unwrapped.single_observation_space["depth_heightmap"].shape == (224, 224)
     assert info["objects_remaining"] == 4 and info["lost_objects"] == 0 and info["num_actions"] == 0
-    names = list(env.unwrapped.active[0])
+    names = list(env.unwrapped.clutter.active[0])
     other, _ = env.reset(seed=4)
     again, _ = env.reset(seed=3)
-    assert env.unwrapped.active[0] == names
+    assert env.unwrapped.clutter.active[0] == names
     assert not torch.equal(other["depth_heightmap"], obs["depth_heightmap"])
     assert torch.allclose(again["depth_heightmap"], obs["depth_heightmap"], atol=1e-3)
     assert (again["color_heightmap"].int() - obs["color_heightmap"].int()).abs().float().mean() < 1.0
@@ -92,7 +92,9 @@ def test_oracle_clears_a_loose_scene(env):
     while not (terminated or truncated):
         obs, reward, terminated, truncated, info = env.step(oracle(obs["depth_heightmap"][0]))
         steps += 1
-        grasps += info["grasp_success"]
+        grasps += int(info["grasp_success"].item())
+        for key in OUTCOME_KEYS:
+            assert info[key].shape == (1,), key
         assert reward.item() == (1.0 if info["place_success"] else 0.5 if info["grasp_success"] else 0.0)
         assert {"objects_remaining", "num_actions", "consecutive_failures", "lost_objects", "stage", "reason"} <= set(info)
     assert terminated and info["objects_remaining"] == 0
@@ -124,17 +126,18 @@ def test_faults_are_detected_and_truncate(env):
     base = env.unwrapped
     env.reset(seed=2)
     assert base.detect_faults()[0] == ""
-    fast = base._active_actors[0][0]
+    fast = base.clutter.active_actors[0][0]
     fast.set_linear_velocity(torch.tensor([[50.0, 0.0, 0.0]]))
-    assert base.detect_faults()[0].startswith(f"physics blow-up: {base.active[0][0]}")
+    assert base.detect_faults()[0].startswith(f"physics blow-up: {base.clutter.active[0][0]}")
 
     env.reset(seed=2)
     finger = base.agent.finger1_link.pose.p[0].numpy()
-    base._active_actors[0][1].set_pose(sapien.Pose(p=finger))
+    base.clutter.active_actors[0][1].set_pose(sapien.Pose(p=finger))
     for _ in range(2):
         base.scene.step()
-    assert base.detect_faults()[0] == f"{base.active[0][1]} rests on the gripper (panda_leftfinger) at the home pose"
+    assert base.detect_faults()[0] == f"{base.clutter.active[0][1]} rests on the gripper (panda_leftfinger) at the home pose"
     obs, reward, terminated, truncated, info = env.step(0)  # any action: the episode cannot go on
-    assert truncated.item() and info["fault"] and reward.item() == 0.0
-    env.reset(seed=2)
-    assert base.detect_faults()[0] == "" and env.unwrapped.last[0]["fault"] == ""
+    assert truncated.item() and info["fault"].tolist() == [True] and reward.item() == 0.0
+    assert "rests on the gripper" in info["fault_reason"]
+    _, info = env.reset(seed=2)
+    assert base.detect_faults()[0] == "" and info["fault"].tolist() == [False] and info["fault_reason"] == ""

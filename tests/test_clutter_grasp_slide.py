@@ -42,7 +42,7 @@ def two_cubes():
 
 
 def positions(env) -> np.ndarray:
-    return np.stack([a.pose.p[0].cpu().numpy() for a in env.unwrapped._active_actors[0]])
+    return np.stack([a.pose.p[0].cpu().numpy() for a in env.unwrapped.clutter.active_actors[0]])
 
 
 def act(env, primitive: str, rotation: int, xyz) -> tuple[float, dict]:
@@ -164,7 +164,7 @@ def test_every_complicated_layout_builds_and_validates(env):
     u = env.unwrapped
     designs = complicated_layouts(WS)
     assert len(designs) == len(COMPLICATED_LAYOUT_NAMES) >= 8
-    assert len(u.pool) < sum(map(len, designs))  # layouts share pool objects
+    assert len(u.clutter.actors) < sum(map(len, designs))  # layouts share pool objects
     for k, design in enumerate(designs):
         assert 3 <= len(validate_layout(design, WS)) <= 7
         _, info = env.reset(seed=0, options={"layout_index": k})

@@ -1,4 +1,5 @@
-"""The pixel actor (argmax layout, ε-greedy draws) and the clutter DQN recipe as a subprocess smoke run with resume."""
+"""The pixel actor (argmax layout, ε-greedy draws), presets, the training metrics (and their agreement with the
+evaluation), and the clutter DQN recipe as a subprocess smoke run with resume."""
 
 from __future__ import annotations
 
@@ -13,11 +14,15 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 from torchrl.data import Categorical
-from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-from maniskill_pnp.agents.clutter_curves import load_actions, plot_training_curves, run_curves, trailing_mean
-from maniskill_pnp.agents.clutter_recipe import ClutterConfig, OutcomeTracker, load_checkpoint
-from maniskill_pnp.agents.pixel_policy import make_pixel_policy
+from maniskill_pnp.agents.pixel.curves import load_actions, plot_training_curves, run_curves, trailing_mean
+from maniskill_pnp.agents.pixel.checkpoint import load_checkpoint
+from maniskill_pnp.agents.pixel.config import PRESETS_FILE, ClutterConfig, presets
+from maniskill_pnp.agents.pixel.evaluate import EpisodeTally
+from maniskill_pnp.agents.pixel.factories import make_env, make_model, make_policy
+from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS, OutcomeTracker
+from maniskill_pnp.agents.pixel.policy import make_pixel_policy
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 
 LAYOUT = PixelActionLayout(1, 2, 8, 8)
@@ -68,12 +73,41 @@ def test_epsilon_one_draws_valid_varied_indices():
     assert egreedy.eps.item() == 1.0
 
 
-def test_presets_resolve():
-    thesis = ClutterConfig.from_preset("thesis")
-    assert (thesis.backbone, thesis.num_rotations, thesis.heightmap_size, thesis.num_objects, thesis.episodes) == (
-        "densenet121", 16, 224, 10, 3000
-    )
-    assert ClutterConfig.from_preset("cpu-small", seed=3).run_name.endswith("seed3")
+#: A few fields of every preset (task, backbone, loss, rotations, heightmap size, steps, batch size, and the ablation
+#: each gs-* preset exists for).
+PRESET_VALUES = {
+    "cpu-small": dict(task="grasp", backbone="small", loss="dqn", num_rotations=4, heightmap_size=64, steps=300, batch_size=4),
+    "thesis": dict(task="grasp", backbone="densenet121", num_rotations=16, heightmap_size=224, num_objects=10,
+                   episodes=3000, steps=90_000, batch_size=1, replay_capacity=50_000, success_window=200),
+    "gs-cpu-small": dict(task="grasp_slide", backbone="small", num_rotations=4, heightmap_size=64, steps=300),
+    "gs-thesis": dict(task="grasp_slide", backbone="densenet121", num_rotations=16, heightmap_size=224, steps=90_000,
+                      eps_decay_steps=10_000, target_update_interval=500, checkpoint_interval=500, log_interval=50),
+    "gs-resnet101": dict(task="grasp_slide", backbone="resnet101", num_rotations=16, heightmap_size=224),
+    "gs-bce": dict(task="grasp_slide", backbone="densenet121", loss="bce", delay_value=False, heightmap_size=224),
+    "gs-no-slide-reward": dict(task="grasp_slide", reward_scheme="no_slide_reward", backbone="densenet121"),
+    "gs-no-depth": dict(task="grasp_slide", use_depth=False, backbone="densenet121", num_rotations=16),
+    "gs-double-dqn": dict(task="grasp_slide", double_dqn=True, delay_value=True, backbone="densenet121"),
+}
+
+
+@pytest.mark.parametrize("name", list(PRESET_VALUES))
+def test_every_preset_loads_with_its_values(name):
+    cfg = ClutterConfig.from_preset(name)
+    assert cfg.preset == name
+    assert {field: getattr(cfg, field) for field in PRESET_VALUES[name]} == PRESET_VALUES[name]
+
+
+def test_presets_file_is_the_list_of_presets_and_overrides_apply():
+    assert list(presets()) == list(PRESET_VALUES)
+    assert PRESETS_FILE.name == "presets.yaml" and PRESETS_FILE.is_file()
+    cfg = ClutterConfig.from_preset("thesis", num_rotations=8, seed=3)
+    assert (cfg.num_rotations, cfg.heightmap_size) == (8, 224) and cfg.run_name.endswith("seed3")
+    assert ClutterConfig.from_preset("gs-cpu-small").primitives == ("grasp", "left_slide", "right_slide")
+
+
+def test_unknown_preset_lists_the_valid_ones():
+    with pytest.raises(ValueError, match=r"unknown preset 'gs-huge'; valid: \['cpu-small', 'thesis', 'gs-cpu-small'"):
+        ClutterConfig.from_preset("gs-huge")
 
 
 @pytest.mark.parametrize("option", [dict(max_minutes=-1.0), dict(max_minutes=float("nan")), dict(episodes=-1)])
@@ -141,29 +175,42 @@ def test_grasp_slide_bce_smoke_run(tmp_path):
     assert "target_value_network_params" not in str(list(ckpt["loss"]))  # BCE: no bootstrap, no target network
 
 
-def test_outcome_tracker_reads_grasps_places_and_episodes():
-    tracker = OutcomeTracker({"place": 1.0, "grasp": 0.8, "slide": 0.5}, actions_per_primitive=100, window=10)
-    actions = torch.tensor([5, 150, 7, 250, 9])  # grasp, left slide, grasp, right slide, grasp
-    rewards = torch.tensor([1.0, 0.5, 0.0, 0.0, 0.8])
-    done = torch.tensor([False, False, False, False, True])
-    finished = tracker.add(actions, rewards, done, terminated=done)
-    assert tracker.grasp_success == pytest.approx(2 / 3)
+GS = ("grasp", "left_slide", "right_slide")
+
+
+def outcome_frames(primitive, reward, grasped, placed, done, slide_changed=None, fault=None) -> TensorDict:
+    """Flat collector-like frames of one env: the ``"next"`` outcome entries the metrics read."""
+    n = len(primitive)
+    flags = lambda values: torch.tensor(values, dtype=torch.bool).reshape(n, 1)  # noqa: E731
+    nxt = dict(primitive_index=torch.tensor(primitive).reshape(n, 1), reward=torch.tensor(reward).reshape(n, 1),
+               grasp_success=flags(grasped), place_success=flags(placed), done=flags(done), terminated=flags(done),
+               slide_changed=flags(slide_changed or [False] * n), fault=flags(fault or [False] * n))
+    return TensorDict(action=torch.arange(n), next=nxt, batch_size=[n])
+
+
+def test_outcome_tracker_reads_grasps_places_and_episodes_from_the_outcome_keys():
+    tracker = OutcomeTracker(GS, window=10)
+    # grasp + place, slide that changed the scene, failed grasp, invalid action (no primitive ran), grasp and hold
+    frames = outcome_frames(primitive=[0, 1, 0, -1, 0], reward=[1.0, 0.5, 0.0, 0.0, 0.8],
+                            grasped=[True, False, False, False, True], placed=[True, False, False, False, False],
+                            done=[False, False, False, False, True], slide_changed=[False, True, False, False, False])
+    finished = tracker.add(frames)
+    assert tracker.grasp_success == pytest.approx(2 / 3) and tracker.last_grasps == 2
     assert tracker.success_rate == pytest.approx(1 / 5)
     assert finished == [dict(actions=5, placed=1, success_rate=0.2, completed=True)]
 
 
 def test_action_log_survives_a_resume_and_feeds_the_curves(tmp_path):
-    rewards = {"place": 1.0, "grasp": 0.5}
-    tracker = OutcomeTracker(rewards, actions_per_primitive=10, window=4, log_path=tmp_path / "actions.csv")
-    tracker.add(torch.arange(6), torch.tensor([0.0, 0.0, 1.0, 0.5, 1.0, 0.0]), torch.zeros(6, dtype=torch.bool),
-                torch.zeros(6, dtype=torch.bool))
+    tracker = OutcomeTracker(("grasp",), window=4, log_path=tmp_path / "actions.csv")
+    tracker.add(outcome_frames([0] * 6, [0.0, 0.0, 1.0, 0.5, 1.0, 0.0], grasped=[0, 0, 1, 1, 1, 0],
+                               placed=[0, 0, 1, 0, 1, 0], done=[0] * 6))
     tracker.close()
     # resume from a checkpoint taken at step 4: rows 5 and 6 are dropped, then 4 new actions follow
-    tracker = OutcomeTracker(rewards, 10, 4, log_path=tmp_path / "actions.csv", start_step=4)
-    tracker.add(torch.arange(4), torch.tensor([1.0, 1.0, 1.0, 0.0]), torch.zeros(4, dtype=torch.bool),
-                torch.zeros(4, dtype=torch.bool))
+    tracker = OutcomeTracker(("grasp",), 4, log_path=tmp_path / "actions.csv", start_step=4)
+    tracker.add(outcome_frames([0] * 4, [1.0, 1.0, 1.0, 0.0], grasped=[1, 1, 1, 0], placed=[1, 1, 1, 0], done=[0] * 4))
     tracker.close()
     a = load_actions(tmp_path)
+    assert list(a) == list(ACTION_COLUMNS)
     assert a["step"].tolist() == list(range(1, 9))
     assert a["placed"].tolist() == [0, 0, 1, 0, 1, 1, 1, 0]
     c = run_curves(tmp_path, window=4)
@@ -173,6 +220,61 @@ def test_action_log_survives_a_resume_and_feeds_the_curves(tmp_path):
     assert summary["run"]["last"]["success_rate"] == 0.75
     import matplotlib.image
     assert matplotlib.image.imread(tmp_path / "curves.png").shape[2] in (3, 4)
+
+
+def test_an_older_action_log_is_resumed_and_plotted(tmp_path):
+    """A run folder of an older version has fewer columns: its rows keep theirs on resume, and the curves read it."""
+    old = ["step,primitive,action,reward,grasp_attempt,grasped,placed,episode_end", "1,0,5,0,1,0,0,0", "2,0,7,1,1,1,1,0",
+           "3,1,9,0.5,0,0,0,0"]
+    (tmp_path / "actions.csv").write_text("\n".join(old) + "\n")
+    assert load_actions(tmp_path)["placed"].tolist() == [0, 1, 0]
+    tracker = OutcomeTracker(GS, 4, log_path=tmp_path / "actions.csv", start_step=2)
+    tracker.add(outcome_frames([2], [0.5], grasped=[0], placed=[0], done=[0], slide_changed=[1]))
+    tracker.close()
+    a = load_actions(tmp_path)
+    assert a["step"].tolist() == [1, 2, 3] and a["grasped"].tolist() == [0, 1, 0] and a["grasp_attempt"].tolist() == [1, 1, 0]
+    assert np.isnan(a["slide_changed"][:2]).all() and a["slide_changed"][2] == 1
+
+
+def test_training_metrics_and_evaluation_agree_on_the_same_actions(tmp_path):
+    """One env, random grasps and slides: the rows the training writes to actions.csv and the evaluation's per-step
+    accounting (from the env's info of the same steps) count the same grasp attempts, grasps and placed objects."""
+    cfg = ClutterConfig.from_preset("gs-cpu-small", heightmap_size=32, num_rotations=2, num_objects=2,
+                                    explore_weights=(2, 1, 1))
+    env = make_env(cfg)
+    env.set_seed(5)
+    torch.manual_seed(5)
+    primitives = env.base_env.primitive_names
+    _, explore, _ = make_policy(cfg, make_model(cfg).eval(), env.action_spec, eps=1.0)
+    tracker = OutcomeTracker(primitives, window=100, log_path=tmp_path / "actions.csv")
+    tallies, infos = [EpisodeTally(primitives)], []
+    td = env.reset()
+    try:
+        with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
+            for _ in range(6):
+                td = env.step(explore(td))
+                info = env.base_env.get_info()  # the info of this step, as the gymnasium env returned it
+                infos.append(info)
+                tallies[-1].add(info)
+                tracker.add(td)
+                if td.get(("next", "done")).any():
+                    td, tallies = env.reset(), tallies + [EpisodeTally(primitives)]
+                else:
+                    td = step_mdp(td)
+    finally:
+        tracker.close()
+        env.close()
+    with open(tmp_path / "actions.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 6 == sum(t.actions for t in tallies)
+    for key, tally_key in (("grasp_attempt", "grasp_attempts"), ("grasped", "grasps"), ("placed", "placed")):
+        assert sum(int(r[key]) for r in rows) == sum(getattr(t, tally_key) for t in tallies), key
+    for row, info in zip(rows, infos):  # and step by step
+        assert int(row["primitive"]) == int(info["primitive_index"])
+        assert int(row["grasped"]) == int(info["grasp_success"]) and int(row["placed"]) == int(info["place_success"])
+        assert int(row["slide_changed"]) == int(info["slide_changed"]) and int(row["fault"]) == int(info["fault"])
+    kinds = {primitives[int(r["primitive"])] for r in rows if int(r["primitive"]) >= 0}
+    assert "grasp" in kinds and kinds & {"left_slide", "right_slide"}, kinds  # both kinds of action were compared
 
 
 def test_trailing_mean_by_hand():

@@ -9,13 +9,14 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from maniskill_pnp.agents.clutter_recipe import ACTION_COLUMNS, ClutterConfig
-from maniskill_pnp.agents.clutter_recipe import main as train_clutter
+from maniskill_pnp.agents.pixel.config import ClutterConfig
+from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS
+from maniskill_pnp.agents.pixel.recipe import main as train_clutter
 from maniskill_pnp.agents.collection import (
     WORKER_SEED_STRIDE, check_collection, make_collector, resolve_backend, streams, worker_seeds,
 )
-from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, load_qtable
-from maniskill_pnp.agents.conveyor_recipe import main as train_conveyor
+from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, load_qtable
+from maniskill_pnp.agents.tabular.recipe import main as train_conveyor
 from maniskill_pnp.bench.scale import COLLECTION_TASKS, collection_setup
 
 TINY = dict(heightmap_size=32, num_rotations=2, num_objects=2)

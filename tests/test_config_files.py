@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from maniskill_pnp.agents.clutter_recipe import ClutterConfig
-from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig
+from maniskill_pnp.agents.pixel.config import ClutterConfig
+from maniskill_pnp.agents.tabular.recipe import ConveyorConfig
 from maniskill_pnp.cli import main as cli
 
 

@@ -8,9 +8,12 @@ import subprocess
 import sys
 
 import pytest
-from torchrl.envs.utils import check_env_specs
+import torch
+from torchrl.envs.utils import ExplorationType, check_env_specs, set_exploration_type, step_mdp
 
-from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, make_env
+from maniskill_pnp.agents.tabular.qtable import QTable, make_qtable_policy
+from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, make_env
+from maniskill_pnp.tasks.conveyor_config import ConveyorSpec
 
 
 def _cli(*args, cwd):
@@ -20,12 +23,59 @@ def _cli(*args, cwd):
 
 
 def test_masked_torchrl_env_passes_check_env_specs():
-    """Random actions from the env's spec respect the phase (the bare wrapper's random actions are invalid)."""
+    """Random actions from the env's spec respect the phase (the bare wrapper's random actions may be invalid).
+
+    TorchRL's check draws one more random action after its 3-step rollout; once an episode is over no action is
+    valid (an all-False mask cannot be sampled), so the check starts one phase into an episode and its rollout runs
+    on across the reset, as a collector's does."""
     env = make_env(ConveyorConfig())
     try:
-        check_env_specs(env, seed=0)
+        env.set_seed(0)
+        after_wait = step_mdp(env.step(env.rand_action(env.reset())))
+        check_env_specs(env, tensordict=after_wait, break_when_any_done=False)
         rollout = env.rollout(6, break_when_any_done=False)
         assert (rollout["action_mask"].gather(-1, rollout["action"].unsqueeze(-1))).all()
+        assert not rollout["next", "invalid_action"].any()
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("exploration", ["greedy", "eps=1"])
+def test_action_mask_is_the_tasks_and_the_policy_keeps_to_it(exploration):
+    """The mask the policies read is the task's own ``info["action_mask"]`` in every phase, the action spec follows
+    it, and a table that prefers masked actions still picks valid ones: the episode runs its phases without an
+    invalid action."""
+    torch.manual_seed(0)
+    spec = ConveyorSpec()
+    table = QTable(spec.num_states, spec.action_n)
+    table.values[:, -1] = 10.0  # the last action is valid only in the pre-pick phase; greedy would take it anywhere
+    eps = 0.0 if exploration == "greedy" else 1.0
+    env = make_env(ConveyorConfig(seed=2))
+    greedy, explore, _ = make_qtable_policy(table, env.action_spec_unbatched, eps_init=eps, eps_end=eps, annealing_num_steps=1)
+    policy, mode = (greedy, ExplorationType.DETERMINISTIC) if exploration == "greedy" else (explore, ExplorationType.RANDOM)
+    task = env.base_env.base_env
+    try:
+        td, phases = env.reset(), []
+        for _ in range(3):
+            info = task.get_info()
+            phases.append(info["phase"])
+            assert torch.equal(td["action_mask"], info["action_mask"])
+            assert torch.equal(env.action_spec.mask, info["action_mask"])
+            with set_exploration_type(mode):
+                td = policy(td)
+            assert td["action_mask"].gather(-1, td["action"].unsqueeze(-1)).all(), (info["phase"], td["action"])
+            td = env.step(td)
+            assert not td["next", "invalid_action"].any()
+            if td["next", "done"].any():
+                break
+            td = step_mdp(td)
+        assert phases[:2] == ["initial", "pre_pick"]
+        assert task.get_info()["phase"] == "done"
+        assert torch.equal(td["next", "action_mask"], task.get_info()["action_mask"])
+        assert not td["next", "action_mask"].any()  # no action is valid once the episode is over
+        if exploration == "greedy":  # the reach to a pre-pick coordinate succeeds: all three phases were seen
+            assert phases == ["initial", "pre_pick", "grasp"]
+            assert td["action"].item() < spec.num_actions["grasp"] < spec.action_n
     finally:
         env.close()
 

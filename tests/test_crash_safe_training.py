@@ -11,8 +11,8 @@ import time
 
 import pytest
 
-from maniskill_pnp.agents.clutter_curves import load_actions
-from maniskill_pnp.agents.clutter_recipe import load_checkpoint
+from maniskill_pnp.agents.pixel.checkpoint import load_checkpoint
+from maniskill_pnp.agents.pixel.curves import load_actions
 
 STEPS, INTERVAL = 8, 2
 ARGS = ["--preset", "cpu-small", "--heightmap-size", "32", "--num-rotations", "2", "--num-objects", "2",

@@ -22,7 +22,7 @@ for _ in range(3):
     obs, reward, terminated, truncated, info = env.step(action)
     record["actions"].append(int(action))
     record["rewards"].append(float(reward))
-record["positions"] = np.round([a.pose.p[0].numpy() for a in env.unwrapped._active_actors[0]], 4).tolist()
+record["positions"] = np.round([a.pose.p[0].numpy() for a in env.unwrapped.clutter.active_actors[0]], 4).tolist()
 print("RECORD" + json.dumps(record))
 """
 

@@ -8,9 +8,12 @@ import math
 import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from maniskill_pnp.agents import clutter_recipe, conveyor_recipe, run_io
-from maniskill_pnp.agents.clutter_recipe import ClutterConfig
-from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig
+from maniskill_pnp.agents import run_io
+from maniskill_pnp.agents.pixel import recipe as clutter_recipe
+from maniskill_pnp.agents.pixel.config import ClutterConfig
+from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS
+from maniskill_pnp.agents.tabular import recipe as conveyor_recipe
+from maniskill_pnp.agents.tabular.recipe import ConveyorConfig
 from maniskill_pnp.cli import main as cli
 
 
@@ -53,7 +56,7 @@ def test_clutter_run_logs_to_tensorboard(tmp_path):
                           "train/episodes", "time/wall_s"}, last_step=2)
     assert [s for s, _ in scalars["train/grasp_success"]] == [1, 2]
     assert not (cfg.run_dir / "scalars").exists()
-    assert (cfg.run_dir / "actions.csv").read_text().splitlines()[0] == ",".join(clutter_recipe.ACTION_COLUMNS)
+    assert (cfg.run_dir / "actions.csv").read_text().splitlines()[0] == ",".join(ACTION_COLUMNS)
 
 
 @pytest.mark.parametrize("config", [ConveyorConfig, ClutterConfig])

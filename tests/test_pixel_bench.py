@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from maniskill_pnp.agents.pixel_fcn import MultiPrimitiveQNetwork
+from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork
 from maniskill_pnp.bench.pixel_dqn import (
     DecisionCostBenchConfig,
     PixelMemoryBenchConfig,

@@ -8,9 +8,9 @@ import torch
 from tensordict import TensorDict
 from torchrl.objectives import HardUpdate
 
-from maniskill_pnp.agents.pixel_fcn import MultiPrimitiveQNetwork, PixelQNetwork, padded_size
-from maniskill_pnp.agents.pixel_loss import PixelBCELoss, PixelDQNLoss
-from maniskill_pnp.agents.pixel_replay import make_pixel_replay, pack, pack_transition, unpack, unpack_transition
+from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork, PixelQNetwork, padded_size
+from maniskill_pnp.agents.pixel.loss import PixelBCELoss, PixelDQNLoss
+from maniskill_pnp.agents.pixel.replay import make_pixel_replay, pack, pack_transition, unpack, unpack_transition
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 
 H = W = 32
@@ -359,7 +359,7 @@ def test_upsampling_puts_each_feature_on_its_receptive_field_centre(backbone, ce
     """Feature ``i`` of a trunk is centred on input pixel ``offset + stride * i``; the upsampled map peaks there."""
     net = PixelQNetwork.__new__(PixelQNetwork)  # only the geometry of the backbone is needed
     nn.Module.__init__(net)
-    from maniskill_pnp.agents.pixel_fcn import BACKBONES
+    from maniskill_pnp.agents.pixel.fcn import BACKBONES
 
     net.stride, net.offset = BACKBONES[backbone].stride, BACKBONES[backbone].offset
     grid = torch.zeros(1, 1, 6, 6)

@@ -9,9 +9,9 @@ from torch import nn
 from torchrl.data import Categorical
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from maniskill_pnp.agents.pixel_loss import PixelDQNLoss
-from maniskill_pnp.agents.pixel_mask import HeightmapActionMask
-from maniskill_pnp.agents.pixel_policy import PrimitiveExploreMask, make_pixel_policy
+from maniskill_pnp.agents.pixel.loss import PixelDQNLoss
+from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
+from maniskill_pnp.agents.pixel.policy import PrimitiveExploreMask, make_pixel_policy
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 
 H = W = 8

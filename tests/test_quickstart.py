@@ -8,8 +8,8 @@ import json
 import pytest
 import torch
 
-from maniskill_pnp.agents.clutter_eval import load_policy
-from maniskill_pnp.agents.clutter_recipe import export_weights, load_checkpoint
+from maniskill_pnp.agents.pixel.checkpoint import export_weights, load_checkpoint
+from maniskill_pnp.agents.pixel.factories import load_policy
 from maniskill_pnp.cli import main as cli
 from maniskill_pnp.quickstart import BUNDLED_AGENTS, QuickstartConfig, report, run
 

@@ -8,9 +8,9 @@ from tensordict import TensorDict
 from torchrl.data import Categorical
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, NextActionPairing, load_qtable, save_qtable, valid_action_table
-from maniskill_pnp.agents.tabular import QTable, bootstrap_for, make_qtable_policy, td_targets, td_update
-from maniskill_pnp.tasks.conveyor_config import PHASES, ConveyorSpec
+from maniskill_pnp.agents.tabular.qtable import QTable, bootstrap_for, make_qtable_policy, td_targets, td_update
+from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, NextActionPairing, load_qtable, save_qtable
+from maniskill_pnp.tasks.conveyor_config import ConveyorSpec
 
 
 def _transition(s, a, r, s2, terminal, next_action, next_mask):
@@ -53,6 +53,13 @@ def test_qlearning_max_runs_over_valid_actions_only():
     table = _two_state_table()  # action 1 (value 5) is invalid in state 1: target 1 + 0.5·2 = 2
     tr = _transition(0, 0, 1.0, 1, False, next_action=0, next_mask=[True, False])
     assert td_targets(table, tr, gamma=0.5, bootstrap=bootstrap_for("qlearning")).tolist() == [2.0]
+
+
+def test_qlearning_bootstraps_zero_where_no_action_is_valid():
+    """The env's mask is all False once the episode is over: no valid next action, nothing to bootstrap."""
+    table = _two_state_table()
+    tr = _transition(0, 0, 1.0, 1, False, next_action=0, next_mask=[False, False])
+    assert td_targets(table, tr, gamma=0.5, bootstrap=bootstrap_for("qlearning")).tolist() == [1.0]
 
 
 @pytest.mark.parametrize("algorithm", ["qlearning", "sarsa"])
@@ -100,16 +107,6 @@ def test_eps_schedule_steps_linearly_then_stays():
     assert egreedy.eps.item() == pytest.approx(0.2)
     egreedy.step(10)
     assert egreedy.eps.item() == pytest.approx(0.1)
-
-
-def test_valid_action_table_follows_the_phases():
-    spec = ConveyorSpec()
-    valid = valid_action_table(spec)
-    assert valid.shape == (spec.num_states, spec.action_n)
-    for phase in PHASES:
-        s = spec.encode_state(phase, None, None, None)
-        assert valid[s].sum().item() == max(1, spec.num_actions[phase])  # "done" lets action 0 through (see docstring)
-        assert valid[s, 0].item()
 
 
 def _frame(s, a, s2, terminated, traj=0):

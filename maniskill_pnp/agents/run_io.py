@@ -9,6 +9,7 @@ import importlib.util
 import inspect
 import json
 import os
+import re
 import tempfile
 import textwrap
 import types
@@ -113,9 +114,14 @@ def _type_name(hint) -> str:
 
 
 def field_docs(cls) -> dict[str, str]:
-    """The docstring under each field of a dataclass (the CLI's ``--help`` text: one source of truth)."""
-    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
+    """The description of each field of a dataclass (the CLI's ``--help`` text: one source of truth): the docstring
+    under the field, else the field's entry in the ``Attributes:`` section of the class docstring."""
     docs = {}
+    section = re.search(r"^Attributes:\n((?:[ \t]+.*\n?|\n)*)", inspect.cleandoc(cls.__doc__ or ""), re.M)
+    if section:
+        for entry in re.finditer(r"^    (\w+): (.*(?:\n {8,}.*)*)", section.group(1), re.M):
+            docs[entry.group(1)] = " ".join(entry.group(2).split())
+    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
     for node, after in zip(body, body[1:]):
         if isinstance(node, ast.AnnAssign) and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
             docs[node.target.id] = " ".join(str(after.value.value).split())

@@ -9,11 +9,11 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from maniskill_pnp.agents.conveyor_eval import TEST_CASES, EvalConfig
-from maniskill_pnp.agents.conveyor_eval import run as evaluate
-from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig
-from maniskill_pnp.agents.conveyor_recipe import main as train
-from maniskill_pnp.agents.tabular import ALGORITHMS
+from maniskill_pnp.agents.tabular.evaluate import TEST_CASES, EvalConfig
+from maniskill_pnp.agents.tabular.evaluate import run as evaluate
+from maniskill_pnp.agents.tabular.qtable import ALGORITHMS
+from maniskill_pnp.agents.tabular.recipe import ConveyorConfig
+from maniskill_pnp.agents.tabular.recipe import main as train
 from maniskill_pnp.bench.common import machine_info, write_report
 
 THESIS_AVERAGE = {"qlearning": 0.93, "sarsa": 0.80}

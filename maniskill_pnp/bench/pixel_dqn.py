@@ -1,10 +1,10 @@
 """Benchmarks of the pixelwise Q networks: training-step memory and the cost of one greedy decision.
 
-**pixel-memory** — peak memory of ONE training step of a :class:`~maniskill_pnp.agents.pixel_fcn.MultiPrimitiveQNetwork`
+**pixel-memory** — peak memory of ONE training step of a :class:`~maniskill_pnp.agents.pixel.fcn.MultiPrimitiveQNetwork`
 (defaults: the thesis' G&S network, 3 primitives x 16 rotations x 224 px heightmap, batch 1, DenseNet-121 trunks):
 forward, a Huber loss on one pixel of every primitive's maps (the executed-pixel loss of the thesis, with a random
 pixel and target), backward. It compares torchvision's DenseNet ``memory_efficient=True`` (gradient checkpointing
-inside every dense layer; what :data:`~maniskill_pnp.agents.pixel_fcn.BACKBONES` builds) with ``False`` (the flag of
+inside every dense layer; what :data:`~maniskill_pnp.agents.pixel.fcn.BACKBONES` builds) with ``False`` (the flag of
 every ``_DenseLayer`` switched off after construction). Each variant runs in its own fresh Python process, so that
 neither sees the other's allocator state; the process reports
 
@@ -20,7 +20,7 @@ A parent watchdog kills a variant whose resident memory passes ``max_rss_gb`` (d
 at the start) and reports it as exceeded, instead of letting the machine run out of memory.
 
 **decision-cost** — the time of one greedy decision (what
-:class:`~maniskill_pnp.agents.pixel_policy.GreedyPixelActor` does: heightmap conversion, padding, ``R`` rotations,
+:class:`~maniskill_pnp.agents.pixel.policy.GreedyPixelActor` does: heightmap conversion, padding, ``R`` rotations,
 both trunks, head, upsampling, rotation back, crop, for every primitive, then the argmax over all flat maps) divided
 by the time of the bare trunk forwards on the same batch (the ``B*R`` rotated padded images, captured from the
 decision itself, through the colour and depth trunks of every primitive). Everything runs under
@@ -51,9 +51,10 @@ import torch.nn.functional as F
 
 from maniskill_pnp.bench.common import machine_info, write_report
 from maniskill_pnp.runtime import resolve_device
+from maniskill_pnp.tasks.clutter_grasp_slide import ClutterGraspSlideEnv
 
 #: Primitive names of the grasp & slide network, in action-index order; a benchmark with ``n`` primitives uses the first n.
-PRIMITIVES = ("grasp", "left_slide", "right_slide")
+PRIMITIVES = ClutterGraspSlideEnv.PRIMITIVES
 #: Ratio decision / bare trunks the issue asks for.
 DECISION_COST_TARGET = 1.3
 #: Operators listed in the decision-cost profile (those whose time grows most from the bare trunks to the decision).
@@ -69,7 +70,7 @@ def _sync(device: torch.device) -> None:
 
 def _check_sizes(backbone: str, num_rotations: int, heightmap_size: int, counts: tuple[int, ...], device: str,
                  threads: int | None) -> None:
-    from maniskill_pnp.agents.pixel_fcn import BACKBONES
+    from maniskill_pnp.agents.pixel.fcn import BACKBONES
 
     if threads is not None and threads < 1:
         raise ValueError(f"threads must be >= 1 (or None for torch's default), got {threads}")
@@ -87,7 +88,7 @@ def _check_sizes(backbone: str, num_rotations: int, heightmap_size: int, counts:
 
 
 def _build(backbone: str, num_rotations: int, num_primitives: int):
-    from maniskill_pnp.agents.pixel_fcn import MultiPrimitiveQNetwork
+    from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork
 
     return MultiPrimitiveQNetwork(PRIMITIVES[:num_primitives], num_rotations=num_rotations, backbone=backbone)
 
@@ -191,7 +192,7 @@ def measure_training_step(settings: dict, memory_efficient: bool) -> dict:
     """
     import gc
 
-    from maniskill_pnp.agents.pixel_policy import heightmap_input
+    from maniskill_pnp.agents.pixel.policy import heightmap_input
 
     device = resolve_device(settings["device"])
     if settings["threads"] is not None:
@@ -439,7 +440,7 @@ def _profile(fn, device: torch.device) -> tuple[dict[str, float], float]:
 @torch.inference_mode()
 def measure_decision(cfg: DecisionCostBenchConfig, num_primitives: int) -> dict:
     """Times of one decision and of its bare trunk passes (s), their ratio, and where the difference goes."""
-    from maniskill_pnp.agents.pixel_policy import GreedyPixelActor
+    from maniskill_pnp.agents.pixel.policy import GreedyPixelActor
 
     device = resolve_device(cfg.device)
     torch.manual_seed(0)

@@ -51,20 +51,24 @@ def _print_machine() -> None:
 
 
 def _clutter_config(preset: str, **overrides):
-    from maniskill_pnp.agents.clutter_recipe import ClutterConfig
+    from maniskill_pnp.agents.pixel.config import ClutterConfig
 
     return ClutterConfig.from_preset(preset, **overrides)
 
 
 def _exploring_pixel_policy(cfg, env, eps: float):
     """The clutter recipe's actor over a freshly initialised network: ε = 1 random allowed actions, 0 greedy."""
-    from maniskill_pnp.agents.clutter_recipe import make_action_mask, make_model
-    from maniskill_pnp.agents.pixel_policy import make_pixel_policy
+    from maniskill_pnp.agents.pixel.factories import make_model, make_policy
 
-    model = make_model(cfg).eval()
-    greedy, explore, _ = make_pixel_policy(model, env.action_spec, eps_init=eps, eps_end=eps, annealing_num_steps=1,
-                                           action_mask=make_action_mask(cfg))
+    greedy, explore, _ = make_policy(cfg, make_model(cfg).eval(), env.action_spec, eps=eps)
     return greedy if eps == 0 else explore
+
+
+def _check_preset(preset: str) -> None:
+    from maniskill_pnp.agents.pixel.config import presets
+
+    if preset not in presets():
+        raise ValueError(f"unknown preset {preset!r}; valid: {list(presets())}")
 
 
 # ============================================================================= env-overhead
@@ -120,7 +124,7 @@ def _bare_pickcube(steps: int, seed: int) -> dict:
 
 def _clutter_primitives(cfg: EnvOverheadBenchConfig) -> dict:
     """Sim steps and times of random grasps on material in ClutterGrasp-v1 (the recipe's env, ε = 1)."""
-    from maniskill_pnp.agents.clutter_recipe import make_env
+    from maniskill_pnp.agents.pixel.factories import make_env
 
     ccfg = _clutter_config("cpu-small", num_objects=cfg.num_objects, heightmap_size=cfg.heightmap_size, seed=cfg.seed)
     env = make_env(ccfg)
@@ -216,8 +220,8 @@ def collection_setup(task: str, seed: int = 0, **clutter_overrides):
     if task not in COLLECTION_TASKS:
         raise ValueError(f"unknown task {task!r}; valid: {list(COLLECTION_TASKS)}")
     if task == "conveyor":
-        from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, make_env, make_worker_env
-        from maniskill_pnp.agents.tabular import QTable, make_qtable_policy
+        from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, make_env, make_worker_env
+        from maniskill_pnp.agents.tabular.qtable import QTable, make_qtable_policy
         from maniskill_pnp.tasks.conveyor_config import ConveyorSpec
 
         tcfg = ConveyorConfig(seed=seed)
@@ -226,7 +230,7 @@ def collection_setup(task: str, seed: int = 0, **clutter_overrides):
         _, policy, _ = make_qtable_policy(QTable(spec.num_states, spec.action_n), env.action_spec_unbatched,
                                           eps_init=1.0, eps_end=1.0, annealing_num_steps=1)
     else:
-        from maniskill_pnp.agents.clutter_recipe import make_env, make_worker_env
+        from maniskill_pnp.agents.pixel.factories import make_env, make_worker_env
 
         tcfg = _clutter_config("cpu-small" if task == "clutter" else "gs-cpu-small", seed=seed, **clutter_overrides)
         env = make_env(tcfg)
@@ -296,10 +300,7 @@ class DecisionBreakdownBenchConfig:
     out: Path = Path("runs/bench/decision_breakdown.json")
 
     def __post_init__(self):
-        from maniskill_pnp.agents.clutter_recipe import PRESETS
-
-        if self.preset not in PRESETS:
-            raise ValueError(f"unknown preset {self.preset!r}; valid: {list(PRESETS)}")
+        _check_preset(self.preset)
         require_positive(self, ("decisions", "num_objects"))
 
 
@@ -315,7 +316,7 @@ def breakdown_table(rows: list[dict]) -> str:
 
 
 def run_decision_breakdown(cfg: DecisionBreakdownBenchConfig) -> dict:
-    from maniskill_pnp.agents.clutter_recipe import make_env
+    from maniskill_pnp.agents.pixel.factories import make_env
 
     torch.manual_seed(cfg.seed)
     ccfg = _clutter_config(cfg.preset, num_objects=cfg.num_objects, seed=cfg.seed)
@@ -375,10 +376,7 @@ class BatchedDecisionsBenchConfig:
     out: Path = Path("runs/bench/batched_decisions.json")
 
     def __post_init__(self):
-        from maniskill_pnp.agents.clutter_recipe import PRESETS
-
-        if self.preset not in PRESETS:
-            raise ValueError(f"unknown preset {self.preset!r}; valid: {list(PRESETS)}")
+        _check_preset(self.preset)
         object.__setattr__(self, "num_envs", tuple(int(n) for n in self.num_envs))
         if not self.num_envs or min(self.num_envs) < 1:
             raise ValueError(f"num_envs must be positive env counts, got {self.num_envs}")
@@ -387,7 +385,7 @@ class BatchedDecisionsBenchConfig:
 
 def _time_decisions(ccfg, steps: int, seed: int, **backend) -> dict:
     """Decisions per second of the exploring actor on the config's task built with ``backend`` options."""
-    from maniskill_pnp.agents.clutter_recipe import make_env
+    from maniskill_pnp.agents.pixel.factories import make_env
 
     torch.manual_seed(seed)
     env = make_env(ccfg, **backend)

@@ -93,7 +93,7 @@ def random_action(obs: dict, env, rng: np.random.Generator, mask) -> int:
 
 
 def run(cfg: SoakBenchConfig) -> dict:
-    from maniskill_pnp.agents.pixel_mask import HeightmapActionMask
+    from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
     from maniskill_pnp.tasks.clutter_grasp_slide import ClutterGraspSlideEnv
     from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
@@ -116,7 +116,8 @@ def run(cfg: SoakBenchConfig) -> dict:
             outcomes["placed" if info["place_success"] else "grasped" if info["grasp_success"] else
                      "slide_changed" if info["slide_changed"] else "failed"] += 1
             if info["fault"]:
-                faults[info["fault"].split(" ")[0] if "rests" not in info["fault"] else "object on gripper"] += 1
+                reason = str(info["fault_reason"])
+                faults[reason.split(" ")[0] if "rests" not in reason else "object on gripper"] += 1
             if terminated.item() or truncated.item():
                 episodes += 1
                 obs, _ = env.reset(seed=cfg.seed + episodes)

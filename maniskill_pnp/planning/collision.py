@@ -187,9 +187,8 @@ class CollisionWorld:
         if not self.arm.within_limits(q):
             return False
         self._set(q)
-        if not self._world.collide():
-            return True
-        # The base link is mounted on the table: its touching the table is not a collision.
+        # The base link is mounted on the table, so a plain collide() is always True: list the pairs at once and
+        # ignore the base link's (its touching the table is not a collision).
         return all(res.link_name1 in self._fixed_links for res in self._world.collide_full())
 
     def segment_valid(self, q0: np.ndarray, q1: np.ndarray, resolution: float = 0.005) -> bool:

@@ -4,7 +4,8 @@ from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv
 from maniskill_pnp.tasks.clutter_grasp_slide import ClutterGraspSlideEnv
 from maniskill_pnp.tasks.conveyor import ConveyorProximityEnv
 from maniskill_pnp.tasks.cube_to_bin import CubeToBinEnv
+from maniskill_pnp.tasks.primitive_env import OUTCOME_KEYS
 
 TASK_IDS = ("CubeToBin-v1", "ConveyorProximity-v1", "ClutterGrasp-v1", "ClutterGraspSlide-v1")
 
-__all__ = ["ClutterGraspEnv", "ClutterGraspSlideEnv", "ConveyorProximityEnv", "CubeToBinEnv", "TASK_IDS"]
+__all__ = ["ClutterGraspEnv", "ClutterGraspSlideEnv", "ConveyorProximityEnv", "CubeToBinEnv", "OUTCOME_KEYS", "TASK_IDS"]

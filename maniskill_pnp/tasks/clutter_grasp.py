@@ -5,28 +5,28 @@ grasps at that pixel's 3-D point with that yaw (:meth:`WorkspaceSpec.grasp_tcp_h
 a grasped object in the bin, and returns to a home pose out of the cameras' view; then both cameras are
 rendered and fused into the next heightmaps.
 
-Objects: a pool of procedural objects (:mod:`maniskill_pnp.tasks.objects`) is built once, with a fixed library
-seed; each episode draws ``num_objects`` of them, drops them into the workspace and lets them settle. Pool
-objects not in the episode wait on the floor far from the robot and the cameras. With ``layout=`` the pool is
-exactly the layout's objects, placed at its poses every episode.
+Objects: a pool of procedural objects (:class:`~maniskill_pnp.tasks.clutter_pool.ClutterPool`) is built once,
+with a fixed library seed; each episode draws ``num_objects`` of them, drops them into the workspace and lets them
+settle. Pool objects not in the episode wait on the floor far from the robot and the cameras. With ``layout=`` the
+pool is exactly the layout's objects, placed at its poses every episode.
 
 Batched: with ManiSkill's GPU simulation (``num_envs > 1``) every sub-scene draws its own clutter from the same
 pool, each env's action is decoded into a primitive program of its own arm (:class:`MotionPrimitives` with
-``env_idx``), and :func:`~maniskill_pnp.planning.lockstep.drive` executes all programs in shared control steps
-(an env whose program is done holds still). The heightmaps of all envs are computed together. On the CPU
-(``num_envs = 1``) the same code runs with one env. Per-env state (:attr:`active`, :attr:`last`, the counters)
-is a list or array indexed by env; ``info`` holds one env's values as scalars, and ``(num_envs,)`` tensors (or
-lists, for text) when there are several.
+``env_idx``), and the step pipeline of :class:`~maniskill_pnp.tasks.primitive_env.PrimitiveStepEnv` executes all
+programs in shared control steps (an env whose program is done holds still). The heightmaps of all envs are
+computed together. On the CPU (``num_envs = 1``) the same code runs with one env. ``info`` holds ``(num_envs,)``
+tensors for numbers (also for one env; the outcome keys of
+:data:`~maniskill_pnp.tasks.primitive_env.OUTCOME_KEYS` among them), and text as it is for one env, listed per env
+for several.
 
-Subclasses with more primitives (``ClutterGraspSlide-v1``) override the hooks :meth:`ClutterGraspEnv._execute`
-(the program of one env's decoded action) and :meth:`ClutterGraspEnv._judge` (reward and success from what it did
-and the heightmaps before and after), and may offer several layouts (:meth:`ClutterGraspEnv._resolve_layouts`).
+Tasks with more primitives (``ClutterGraspSlide-v1``) declare them in :attr:`ClutterGraspEnv.PRIMITIVES` and
+:attr:`ClutterGraspEnv.primitive_programs`, judge them in :meth:`ClutterGraspEnv._judge`, and may offer several
+layouts (:meth:`ClutterGraspEnv._resolve_layouts`).
 """
 
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 from dataclasses import replace
 
 import numpy as np
@@ -38,22 +38,21 @@ from mani_skill.agents.robots import Panda
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
-from mani_skill.utils.structs.pose import Pose
 
-from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion, Program, drive
+from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion, Program
 from maniskill_pnp.planning.primitives import MotionPrimitives, grasp_pose
 from maniskill_pnp.planning.robot import panda_spec
 from maniskill_pnp.tasks.bin import build_bin
-from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_actions, register_primitive_env
-from maniskill_pnp.tasks.clutter import density_range, object_status, random_specs, sample_clutter, validate_layout
+from maniskill_pnp.tasks.clutter import density_range, validate_layout
+from maniskill_pnp.tasks.clutter_pool import ClutterPool, SettleSpec
 from maniskill_pnp.tasks.heightmap import heightmaps_from_sensors
-from maniskill_pnp.tasks.objects import KINDS, ObjectSpec, build_object
+from maniskill_pnp.tasks.objects import KINDS, ObjectSpec
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+from maniskill_pnp.tasks.primitive_env import Decision, Judgement, PrimitiveStepEnv
+from maniskill_pnp.tasks.registration import register_task
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
 ROBOT_BASE = (-0.615, 0.0, 0.0)
-#: Height of the floor under ManiSkill's table scene (where unused pool objects wait).
-FLOOR_Z = -0.9196
 
 
 def camera_clear_home() -> np.ndarray:
@@ -63,7 +62,7 @@ def camera_clear_home() -> np.ndarray:
     return q
 
 
-@register_primitive_env("ClutterGrasp-v1", max_episode_steps=None)
+@register_task("ClutterGrasp-v1", max_episode_steps=None)
 class ClutterGraspEnv(PrimitiveStepEnv):
     """**Task Description:**
     A loosely packed clutter of regular and irregular objects lies in the workspace in front of the Panda; a bin
@@ -95,15 +94,13 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     POOL_SIZE = 20
     #: Control steps the gripper is held open after a place that did not land in the bin, before checking again.
     RELEASE_STEPS = 20
-    #: Primitive names, in the order of the action's primitive index.
     PRIMITIVES = ("grasp",)
     #: Speed (m/s) above which an object counts as blown up by the physics (nothing in the task moves this fast).
     MAX_OBJECT_SPEED = 5.0
     #: Contact force (N) between an object and the gripper at home above which the object rests on the gripper.
     GRIPPER_CONTACT_FORCE = 1e-3
-    #: The settle after dropping the clutter: at least SETTLE_MIN_STEPS, at most SETTLE_MAX_STEPS control steps,
-    #: until every object moves slower than SETTLE_LINEAR m/s and SETTLE_ANGULAR rad/s.
-    SETTLE_MIN_STEPS, SETTLE_MAX_STEPS, SETTLE_LINEAR, SETTLE_ANGULAR = 3, 60, 0.005, 0.05
+    #: The settle after dropping the clutter.
+    SETTLE = SettleSpec()
 
     def __init__(
         self,
@@ -142,31 +139,21 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         kwargs.setdefault("obs_mode", "rgb+depth")
         if kwargs["obs_mode"] != "rgb+depth":
             raise ValueError(f"ClutterGrasp-v1 observes RGB-D heightmaps: obs_mode must be 'rgb+depth', got {kwargs['obs_mode']!r}")
-        self.layouts = self._resolve_layouts(layout)
-        if self.layouts is None:
-            self.num_objects_range = (int(lo), int(hi))
-        else:
-            self.num_objects_range = (min(map(len, self.layouts)), max(map(len, self.layouts)))
-        self.object_kinds = kinds
-        self.loosely_packed = bool(loosely_packed)
-        self.min_gap = float(min_gap)
+        layouts = self._resolve_layouts(layout)
+        num_objects_range = (int(lo), int(hi)) if layouts is None else (min(map(len, layouts)), max(map(len, layouts)))
+        n = int(kwargs.get("num_envs", 1))  # ManiSkill's __init__ resets the envs, so the per-env state comes first
+        #: The objects: the pool of actors and each env's episode objects.
+        self.clutter = ClutterPool(self.workspace, n, layouts, num_objects_range, kinds, bool(loosely_packed), float(min_gap),
+                                   size=self.POOL_SIZE, library_seed=self.LIBRARY_SEED, settle=self.SETTLE,
+                                   max_speed=self.MAX_OBJECT_SPEED)
         self.max_consecutive_failures = max_consecutive_failures
-        self.max_actions = int(max_actions) if max_actions is not None else 3 * self.num_objects_range[1]
+        self.max_actions = int(max_actions) if max_actions is not None else 3 * num_objects_range[1]
         self.include_camera_data = include_camera_data
         self.planner_seed = planner_seed
         s = self.workspace.heightmap_size
         self.action_layout = PixelActionLayout(len(self.PRIMITIVES), self.workspace.num_rotations, s, s)
         self.home_qpos = camera_clear_home()
         self.prims: list[MotionPrimitives] | None = None
-        self._episode_ready = False
-        n = int(kwargs.get("num_envs", 1))  # ManiSkill's __init__ resets the envs, so the per-env state comes first
-        #: Per env: the pool indices of the episode's objects, their names and actors.
-        self.active_index: list[list[int]] = [[] for _ in range(n)]
-        self.active: list[list[str]] = [[] for _ in range(n)]
-        self._active_actors: list[list] = [[] for _ in range(n)]
-        #: Per env: what its last action did (the ``info`` fields of the step).
-        self.last: list[dict] = [{} for _ in range(n)]
-        self.layout_index = np.full(n, -1)
         self.settle_steps = np.zeros(n, dtype=np.int64)
         self.num_actions = np.zeros(n, dtype=np.int64)
         self.consecutive_failures = np.zeros(n, dtype=np.int64)
@@ -174,6 +161,20 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.num_placed = np.zeros(n, dtype=np.int64)
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
         self._use_discrete_actions(self.action_layout.size)
+
+    @property
+    def layouts(self) -> list | None:
+        """The explicit layouts (lists of ``(ObjectSpec, pose)``) episodes are drawn from, or None (random clutter)."""
+        return self.clutter.layouts
+
+    @property
+    def num_objects_range(self) -> tuple[int, int]:
+        """(min, max) objects of an episode."""
+        return self.clutter.num_objects
+
+    @property
+    def primitive_programs(self):
+        return {"grasp": self._grasp_program}
 
     # ------------------------------------------------------------------ spaces
     @property
@@ -213,103 +214,35 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.table_scene = TableSceneBuilder(self, robot_init_qpos_noise=0.0)
         self.table_scene.build()
         self.bin = build_bin(self.scene, self.workspace.bin)
-        if self.layouts is not None:
-            self.pool_specs, self.layout_slots = _shared_pool(self.layouts)
-        else:
-            rng = np.random.default_rng(self.LIBRARY_SEED)
-            self.pool_specs = random_specs(rng, max(self.POOL_SIZE, self.num_objects_range[1]), self.object_kinds)
-        self.pool_names = [f"obj_{i}_{spec.kind}" for i, spec in enumerate(self.pool_specs)]
-        self.pool = [build_object(self.scene, spec, name, self._park_pose(i)) for i, (spec, name) in enumerate(zip(self.pool_specs, self.pool_names))]
+        self.clutter.build(self.scene)
         self.prims = None  # a new scene (reconfiguration) needs new primitives
-
-    def _park_pose(self, i: int) -> sapien.Pose:
-        spec = self.pool_specs[i]
-        return sapien.Pose(p=[1.6 + 0.15 * (i % 6), -0.5 + 0.15 * (i // 6), FLOOR_Z + spec.extents[2] / 2 + 1e-3])
 
     # ------------------------------------------------------------------ episode
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         envs = [int(e) for e in torch.as_tensor(env_idx).reshape(-1).tolist()]
-        b = len(envs)
         self.table_scene.initialize(env_idx)
         qpos = torch.as_tensor(np.concatenate([self.home_qpos, [0.04, 0.04]]), dtype=torch.float32, device=self.device)
-        self.agent.robot.set_qpos(qpos.expand(b, -1))
+        self.agent.robot.set_qpos(qpos.expand(len(envs), -1))
         self.agent.controller.reset()  # controller targets of the reset envs follow the home pose set above
-        poses = [[self._park_pose(i)] * b for i in range(len(self.pool))]  # pool index -> pose in each reset env
-        for k, e in enumerate(envs):
-            chosen, placed = self._draw_clutter(e, options)
-            for i, pose in zip(chosen, placed):
-                poses[i][k] = pose
-            self.active_index[e] = chosen
-            self.active[e] = [self.pool_names[i] for i in chosen]
-            self._active_actors[e] = [self.pool[i] for i in chosen]
+        rngs = [np.random.default_rng(int(self._batched_episode_rng[e].randint(2**31))) for e in envs]
+        self.clutter.draw(envs, rngs, lambda rng: self._choose_layout(rng, options), self.device)
+        for e in envs:
             self.num_actions[e] = self.consecutive_failures[e] = self.num_grasps[e] = self.num_placed[e] = 0
             self.last[e] = self._initial_last()
-        zeros = torch.zeros(b, 3, device=self.device)
-        for actor, actor_poses in zip(self.pool, poses):
-            p = torch.as_tensor(np.stack([pose.p for pose in actor_poses]), dtype=torch.float32, device=self.device)
-            q = torch.as_tensor(np.stack([pose.q for pose in actor_poses]), dtype=torch.float32, device=self.device)
-            actor.set_pose(Pose.create_from_pq(p=p, q=q))
-            actor.set_linear_velocity(zeros)
-            actor.set_angular_velocity(zeros)
         prims = self._primitives()
         for e in envs:
             prims[e].reset()
-        self.settle_steps[envs] = self._settle(envs)
+        lockstep = self._lockstep
+        steps0 = lockstep.control_steps
+        with self._all_envs_live():  # the other envs' arms hold while the reset ones settle
+            lockstep.run([self.clutter.settle_motion(e, self.home_qpos) if e in envs else None for e in range(self.num_envs)])
+        self.settle_steps[envs] = lockstep.control_steps - steps0
         self._episode_ready = True
-
-    def _draw_clutter(self, env: int, options: dict) -> tuple[list[int], list[sapien.Pose]]:
-        """Env ``env``'s episode objects (pool indices) and their drop poses, from its seeded episode RNG."""
-        rng = np.random.default_rng(int(self._batched_episode_rng[env].randint(2**31)))
-        self.layout_index[env] = -1
-        if self.layouts is not None:
-            k = self.layout_index[env] = self._choose_layout(rng, options)
-            return list(self.layout_slots[k]), [pose for _, pose in self.layouts[k]]
-        lo, hi = self.num_objects_range
-        chosen = sorted(rng.choice(len(self.pool), size=int(rng.integers(lo, hi + 1)), replace=False).tolist())
-        return chosen, sample_clutter(rng, [self.pool_specs[i] for i in chosen], self.workspace, self.loosely_packed, self.min_gap)
 
     def _initial_last(self) -> dict:
         """The ``last`` entry of an env before its first action."""
-        return dict(grasp_success=False, place_success=False, stage="reset", reason="", action=-1, fault="")
+        return dict(super()._initial_last(), stage="reset", reason="")
 
-    def _settle(self, envs: list[int]) -> int:
-        """Let the dropped clutter of ``envs`` come to rest, their arms at home and grippers open, the other envs'
-        arms holding; returns the control steps taken."""
-        home = self.home_qpos[None]
-
-        def at_rest(e: int):
-            def test() -> bool:
-                return all(float(torch.linalg.norm(a.linear_velocity[e])) < self.SETTLE_LINEAR
-                           and float(torch.linalg.norm(a.angular_velocity[e])) < self.SETTLE_ANGULAR
-                           for a in self._active_actors[e])
-            return test
-
-        motions = [None] * self.num_envs
-        for e in envs:
-            motions[e] = Motion(home, gripper=1.0, min_steps=self.SETTLE_MIN_STEPS, settle_tol=None, until=at_rest(e),
-                                max_settle=self.SETTLE_MAX_STEPS - self.SETTLE_MIN_STEPS)
-        lockstep = self._lockstep
-        steps0 = lockstep.control_steps
-        with self._all_envs_live():
-            lockstep.run(motions)
-        return lockstep.control_steps - steps0
-
-    @contextmanager
-    def _all_envs_live(self):
-        """Step the whole scene inside ``_initialize_episode``: the poses set so far are applied (GPU simulation)
-        and ManiSkill's reset mask, which limits setters to the envs being reset, is lifted meanwhile."""
-        mask = self.scene._reset_mask
-        self.scene._reset_mask = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
-        if self.gpu_sim_enabled:
-            self.scene._gpu_apply_all()
-            self.scene.px.gpu_update_articulation_kinematics()
-            self.scene._gpu_fetch_all()
-        try:
-            yield
-        finally:
-            self.scene._reset_mask = mask
-
-    # ------------------------------------------------------------------ reset and step
     def _primitives(self) -> list[MotionPrimitives]:
         """Each env's motion primitives, all driving one shared :class:`LockstepExecutor`."""
         if self.prims is None:
@@ -326,87 +259,59 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     def _lockstep(self) -> LockstepExecutor:
         return self._primitives()[0].executor.lockstep
 
-    def step(self, action):
-        if not self._episode_ready:
-            raise RuntimeError("call reset() before step()")
-        indices = self._check_action(action)
-        lockstep = self._lockstep
-        before = self._height
-        t0, sim0 = time.perf_counter(), lockstep.sim_steps
-        outcomes = drive(lockstep, [self._action_program(e, index) for e, index in enumerate(indices)])
-        t_motion = time.perf_counter() - t0
-        self._elapsed_steps += 1
-        obs = self.get_obs()
-        faults = self.detect_faults()
-        rewards = np.zeros(self.num_envs, dtype=np.float32)
-        for e, (index, outcome) in enumerate(zip(indices, outcomes)):
-            rewards[e], success = self._judge(e, outcome, before[e], self._height[e])
-            self.num_actions[e] += 1
-            self.num_grasps[e] += int(outcome["grasp_success"])
-            self.num_placed[e] += int(outcome["place_success"])
-            self.consecutive_failures[e] = 0 if success else self.consecutive_failures[e] + 1
-            self.last[e] = dict(outcome, action=index, time_motion=t_motion, sim_steps=lockstep.sim_steps - sim0,
-                                fault=faults[e])
-        info = self.get_info()
-        info["time_render"], info["time_heightmap"] = self._t_render, self._t_heightmap
-        remaining = np.array([self._status(e).count("workspace") for e in range(self.num_envs)])
-        terminated = remaining == 0
-        truncated = ~terminated & ((self.consecutive_failures >= self.max_consecutive_failures)
-                                   | (self.num_actions >= self.max_actions) | np.array([bool(f) for f in faults]))
-        self._last_obs = obs
-        return (obs, torch.as_tensor(rewards, device=self.device), torch.as_tensor(terminated, device=self.device),
-                torch.as_tensor(truncated, device=self.device), info)
+    # ------------------------------------------------------------------ step hooks
+    def _action_description(self) -> str:
+        n = self.action_layout.size
+        if len(self.PRIMITIVES) > 1:
+            grid = f"(primitive, rotation, row, col) = {self.action_layout.shape}, primitives {self.PRIMITIVES}"
+        else:
+            grid = f"(rotation, row, col) = {self.action_layout.shape[1:]}"
+        return f"one integer flat index in 0..{n - 1} over {grid}"
 
-    def _action_program(self, env: int, index: int) -> Program:
-        """Env ``env``'s whole step as one program: the decoded action (:meth:`_execute`), then the way home (planned
-        a second time if the first plan fails, before leaving the arm in the cameras' view)."""
+    def _decode(self, env: int, index: int) -> Decision:
         primitive, rot, row, col = (int(v) for v in self.action_layout.decode(index))
+        return Decision(index, self.PRIMITIVES[primitive], (rot, row, col))
+
+    def _snapshot(self, env: int) -> dict:
+        return dict(height=self._height[env], lost=self.clutter.status(env).count("lost"))
+
+    def _step_program(self, env: int, decision: Decision) -> Program:
+        """Env ``env``'s whole step as one program: the decoded primitive, then the way home (planned a second time
+        if the first plan fails, before leaving the arm in the cameras' view)."""
         prims = self.prims[env]
-        outcome = yield from self._execute(env, primitive, rot, row, col)
+        outcome = yield from super()._step_program(env, decision)
         home = yield from prims.program("go_home")
         if not home.ok:  # RRT is randomized: one more plan
             outcome["planning_time"] += home.planning_time
             home = yield from prims.program("go_home")
         outcome["planning_time"] += home.planning_time
-        return dict(outcome, home_ok=bool(home.ok), pixel=(rot, row, col))
+        return dict(outcome, home_ok=bool(home.ok), pixel=decision.args)
 
-    @property
-    def step_timings(self) -> dict:
-        """Where the last step's time went, in seconds: ``render`` and ``heightmap`` of its closing observation,
-        ``planning`` (IK, RRT-Connect, time parameterization; summed over the envs, which plan one after another),
-        ``motion`` (the primitives of all envs and their way home, planning included), and its ``sim_steps``
-        (physics steps, shared by the envs)."""
-        last = self.last[0]
-        return dict(render=self._t_render, heightmap=self._t_heightmap,
-                    planning=float(sum(entry.get("planning_time", 0.0) for entry in self.last)),
-                    motion=float(last.get("time_motion", 0.0)), sim_steps=int(last.get("sim_steps", 0)))
-
-    def _execute(self, env: int, primitive: int, rot: int, row: int, col: int) -> Program:
-        """The program of env ``env``'s decoded action (the arm is left where the primitive ends; the step's program
-        goes on home).
-
-        Returns (as the program's return value):
-            Info fields of the step; at least ``grasp_success``, ``place_success``, ``stage``, ``reason`` and
-            ``planning_time``.
-        """
-        return (yield from self._grasp_at(env, rot, row, col))
-
-    def _judge(self, env: int, outcome: dict, height_before: np.ndarray, height_after: np.ndarray) -> tuple[float, bool]:
-        """Reward of env ``env``'s step and whether it counts as a success (a failure extends the run of failures).
-
-        ``outcome`` is what :meth:`_execute` returned (a subclass may add fields to it); the heightmaps are the env's
-        before and after the action.
-        """
-        grasped, placed = outcome["grasp_success"], outcome["place_success"]
+    def _judge(self, env: int, decision: Decision, result: dict, before: dict) -> Judgement:
+        grasped, placed = result["grasp_success"], result["place_success"]
         r = self.rewards
-        return (r["place"] if placed else r["grasp"] if grasped else 0.0), grasped
+        return Judgement(r["place"] if placed else r["grasp"] if grasped else 0.0, bool(grasped), result)
+
+    def _record(self, env: int, decision: Decision, judged: Judgement) -> None:
+        self.num_actions[env] += 1
+        self.num_grasps[env] += int(judged.outcome.get("grasp_success", False))
+        self.num_placed[env] += int(judged.outcome.get("place_success", False))
+        self.consecutive_failures[env] = 0 if judged.success else self.consecutive_failures[env] + 1
+
+    def _episode_end(self, faults: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        remaining = np.array([self.clutter.status(e).count("workspace") for e in range(self.num_envs)])
+        terminated = remaining == 0
+        truncated = ~terminated & ((self.consecutive_failures >= self.max_consecutive_failures)
+                                   | (self.num_actions >= self.max_actions) | faults)
+        return terminated, truncated
 
     @property
     def rewards(self) -> dict[str, float]:
         """Reward per outcome: ``place`` (the object landed in the bin), ``grasp`` (grasped but not placed)."""
         return {"place": 1.0, "grasp": 0.5}
 
-    def _grasp_at(self, env: int, rot: int, row: int, col: int) -> Program:
+    # ------------------------------------------------------------------ primitive programs
+    def _grasp_program(self, env: int, rot: int, row: int, col: int) -> Program:
         """Program: grasp top-down at pixel ``(row, col)`` of env ``env`` with rotation ``rot``; place a grasped
         object in the bin."""
         prims = self.prims[env]
@@ -414,7 +319,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         xyz = self.workspace.pixel_to_world(row, col, 0.0)
         xyz[2] = self.workspace.grasp_tcp_height(surface)
         yaw = float(self.workspace.rotation_to_yaw(rot))
-        pick = yield from prims.program("pick", grasp_pose(xyz, yaw), target=None, candidates=self._in_workspace(env))
+        pick = yield from prims.program("pick", grasp_pose(xyz, yaw), target=None, candidates=self.clutter.in_workspace(env))
         placed, place_stage, place_reason, planning_time = False, "", "", pick.planning_time
         if pick.grasped:
             place = yield from prims.program("place", self.workspace.bin.region())
@@ -424,22 +329,12 @@ class ClutterGraspEnv(PrimitiveStepEnv):
                 # Carrying failed (object still held) or it had not come to rest yet: open wide, wait, look again.
                 yield Motion(gripper=1.0, min_steps=self.RELEASE_STEPS, settle_tol=None)
                 prims.held = None
-                placed = self._status(env)[self.active[env].index(pick.held)] == "bin"
+                placed = self.clutter.status(env)[self.clutter.active[env].index(pick.held)] == "bin"
         return dict(
             grasp_success=bool(pick.grasped), place_success=bool(placed), stage=pick.stage, reason=pick.reason,
             place_stage=place_stage, place_reason=place_reason, grasp_position=[float(v) for v in xyz], grasp_yaw=yaw,
             planning_time=planning_time,
         )
-
-    def _check_action(self, action) -> list[int]:
-        """Each env's action as an int in the valid range; ValueError naming the range otherwise (before anything
-        moves)."""
-        n = self.action_layout.size
-        if len(self.PRIMITIVES) > 1:
-            grid = f"(primitive, rotation, row, col) = {self.action_layout.shape}, primitives {self.PRIMITIVES}"
-        else:
-            grid = f"(rotation, row, col) = {self.action_layout.shape[1:]}"
-        return parse_discrete_actions(action, self.num_envs, n, f"one integer flat index in 0..{n - 1} over {grid}")
 
     # ------------------------------------------------------------------ layouts
     def _resolve_layouts(self, layout) -> list[list[tuple[ObjectSpec, sapien.Pose]]] | None:
@@ -470,42 +365,20 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         * an object resting on the gripper (in contact with a finger or the hand at the home pose), which would
           make every later plan start in collision.
 
-        ``step`` puts the reason in ``info["fault"]`` and truncates that env's episode; objects thrown out of the
-        workspace are counted in ``info["lost_objects"]`` as usual. Each pool object in play in some env is read
-        once for all envs.
+        ``step`` sets ``info["fault"]`` (the reason in ``info["fault_reason"]``) and truncates that env's episode;
+        objects thrown out of the workspace are counted in ``info["lost_objects"]`` as usual.
         """
-        faults = [""] * self.num_envs
-        used = sorted({i for index in self.active_index for i in index})
-        pose = {i: self.pool[i].pose.p for i in used}
-        vel = {i: self.pool[i].linear_velocity for i in used}
-        for e in range(self.num_envs):
-            for i in self.active_index[e]:
-                p, v = pose[i][e], vel[i][e]
-                if not (torch.isfinite(p).all() and torch.isfinite(v).all()) or float(v.norm()) > self.MAX_OBJECT_SPEED:
-                    faults[e] = f"physics blow-up: {self.pool_names[i]} at {p.tolist()} moving at {float(v.norm()):.3g} m/s"
-                    break
+        faults = self.clutter.blow_ups()
         links = (self.agent.finger1_link, self.agent.finger2_link, self.agent.robot.links_map["panda_hand"])
-        for i in used:
+        for i in self.clutter.in_play():
             for link in links:
-                force = self.scene.get_pairwise_contact_forces(link, self.pool[i]).norm(dim=-1).reshape(-1)
+                force = self.scene.get_pairwise_contact_forces(link, self.clutter.actors[i]).norm(dim=-1).reshape(-1)
                 for e in range(self.num_envs):
-                    if not faults[e] and i in self.active_index[e] and float(force[e]) > self.GRIPPER_CONTACT_FORCE:
-                        faults[e] = f"{self.pool_names[i]} rests on the gripper ({link.name}) at the home pose"
+                    if not faults[e] and i in self.clutter.active_index[e] and float(force[e]) > self.GRIPPER_CONTACT_FORCE:
+                        faults[e] = f"{self.clutter.names[i]} rests on the gripper ({link.name}) at the home pose"
         return faults
 
-    # ------------------------------------------------------------------ observation, evaluation, reward
-    def _in_workspace(self, env: int) -> list[str]:
-        """Names of env ``env``'s objects still in the workspace."""
-        if not self._episode_ready:
-            return []
-        return [name for name, s in zip(self.active[env], self._status(env)) if s == "workspace"]
-
-    def _status(self, env: int) -> list[str]:
-        """Where each of env ``env``'s objects is (:func:`~maniskill_pnp.tasks.clutter.object_status`)."""
-        actors = self._active_actors[env]
-        pos = np.stack([a.pose.p[env].cpu().numpy() for a in actors]) if actors else np.zeros((0, 3))
-        return object_status(pos, self.workspace)
-
+    # ------------------------------------------------------------------ observation and info
     def get_obs(self, info: dict | None = None, unflattened: bool = False):
         t0 = time.perf_counter()
         self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
@@ -525,67 +398,21 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             obs["sensor_param"] = params
         return obs
 
-    def evaluate(self):
-        if not getattr(self, "_episode_ready", False):
-            return {}
-        return batch_infos([self._env_info(e) for e in range(self.num_envs)], self.device)
+    def _observation_timing(self) -> dict:
+        return dict(render=self._t_render, heightmap=self._t_heightmap)
 
     def _env_info(self, env: int) -> dict:
-        """Env ``env``'s ``info`` fields: the episode's counts, then what its last action did."""
-        status = self._status(env)
+        status = self.clutter.status(env)
         remaining = status.count("workspace")
         return dict(
             success=remaining == 0,
             objects_remaining=remaining,
             objects_in_bin=status.count("bin"),
             lost_objects=status.count("lost"),
-            num_objects=len(self.active[env]),
+            num_objects=len(self.clutter.active[env]),
             num_actions=int(self.num_actions[env]),
             num_grasps=int(self.num_grasps[env]),
             consecutive_failures=int(self.consecutive_failures[env]),
             settle_steps=int(self.settle_steps[env]),
-            layout_index=int(self.layout_index[env]),
-            **self.last[env],
+            layout_index=int(self.clutter.layout_index[env]),
         )
-
-    def compute_dense_reward(self, obs, action, info):
-        return info["success"].float()
-
-    def compute_normalized_dense_reward(self, obs, action, info):
-        return self.compute_dense_reward(obs, action, info)
-
-
-def batch_infos(infos: list[dict], device) -> dict:
-    """One ``info`` from the per-env ones: one env's values as they are (``success`` as a ``(1,)`` tensor, as ManiSkill
-    has it); for several envs, each key's values as a ``(num_envs,)`` tensor when they are all numbers, else a list."""
-    if len(infos) == 1:
-        return dict(infos[0], success=torch.tensor([infos[0]["success"]], device=device))
-    out = {}
-    for key in infos[0]:
-        values = [info.get(key) for info in infos]
-        numeric = all(isinstance(v, (bool, int, float, np.integer, np.floating)) for v in values)
-        out[key] = torch.tensor(values, device=device) if numeric else values
-    return out
-
-
-def _shared_pool(layouts) -> tuple[list[ObjectSpec], list[list[int]]]:
-    """One pool for several layouts: each distinct spec as many times as the layout that uses it most.
-
-    Returns:
-        The pool's specs and, per layout, the pool index of each of its entries.
-    """
-    pool: list[ObjectSpec] = []
-    slots = []
-    for layout in layouts:
-        used: dict[ObjectSpec, int] = {}
-        indices = []
-        for spec, _ in layout:
-            copies = [i for i, s in enumerate(pool) if s == spec]
-            k = used.get(spec, 0)
-            if k == len(copies):
-                pool.append(spec)
-                copies.append(len(pool) - 1)
-            indices.append(copies[k])
-            used[spec] = k + 1
-        slots.append(indices)
-    return pool, slots

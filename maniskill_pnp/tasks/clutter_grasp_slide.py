@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
-
 from maniskill_pnp.tasks.clutter import validate_layout
 from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv
 from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
-from maniskill_pnp.tasks.primitive_env import register_primitive_env
+from maniskill_pnp.tasks.primitive_env import Judgement
+from maniskill_pnp.tasks.registration import register_task
 
 #: Rewards per scheme: object placed in the bin, grasped but not placed, slide that changed the scene.
 REWARD_SCHEMES = {
@@ -59,7 +59,7 @@ def heightmap_changed(before: np.ndarray, after: np.ndarray) -> bool:
     return changed_pixels(before, after) > change_threshold(*np.shape(before)[-2:])
 
 
-@register_primitive_env("ClutterGraspSlide-v1", max_episode_steps=None)
+@register_task("ClutterGraspSlide-v1", max_episode_steps=None)
 class ClutterGraspSlideEnv(ClutterGraspEnv):
     """**Task Description:**
     Any clutter of regular and irregular objects, tightly packed allowed, lies in the workspace in front of the
@@ -115,7 +115,6 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
             raise ValueError(f"complicated_index must be an int in 0..{n - 1} ({list(COMPLICATED_LAYOUT_NAMES)}), got {complicated_index!r}")
         self.reward_scheme = reward_scheme
         self.complicated_index = None if complicated_index is None else int(complicated_index)
-        self._lost_before = np.zeros(int(kwargs.get("num_envs", 1)), dtype=np.int64)  # per env, before its action
         super().__init__(*args, num_objects=num_objects, loosely_packed=loosely_packed, layout=layout, **kwargs)
 
     @property
@@ -136,42 +135,42 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
             return self.complicated_index
         return super()._choose_layout(rng, options)
 
-    # ------------------------------------------------------------------ episode and step
+    # ------------------------------------------------------------------ primitives and judgement
+    @property
+    def primitive_programs(self):
+        return {"grasp": self._grasp_program, "left_slide": self._slide_program("left"),
+                "right_slide": self._slide_program("right")}
+
     def _initial_last(self):
-        return dict(super()._initial_last(), primitive="", primitive_index=-1, slide_changed=False, changed_pixels=0,
-                    knocked_out=0)
+        return dict(super()._initial_last(), changed_pixels=0)
 
-    def _execute(self, env, primitive, rot, row, col):
-        name = self.PRIMITIVES[primitive]
-        self._lost_before[env] = self._status(env).count("lost")
-        if name == "grasp":
-            out = yield from self._grasp_at(env, rot, row, col)
-        else:
-            out = yield from self._slide_at(env, name.removesuffix("_slide"), rot, row, col)
-        return dict(out, primitive=name, primitive_index=primitive)
+    def _slide_program(self, side: str):
+        """The program of a slide to ``side``: ``program(env, rot, row, col)``."""
 
-    def _slide_at(self, env: int, side: str, rot: int, row: int, col: int):
-        """Program: push env ``env``'s closed fingertips ``slide_length`` from pixel ``(row, col)`` to ``side`` of
-        rotation ``rot``."""
-        ws = self.workspace
-        start = ws.pixel_to_world(row, col, 0.0)
-        start[2] = ws.slide_tip_height(self._height[env], row, col)
-        direction = ws.slide_direction(rot, side)
-        res = yield from self.prims[env].program("slide", start, direction, ws.slide_length)
-        return dict(
-            grasp_success=False, place_success=False, stage=res.stage, reason=res.reason, place_stage="", place_reason="",
-            slide_start=[float(v) for v in start], slide_direction=[float(v) for v in direction], planning_time=res.planning_time,
-        )
+        def program(env: int, rot: int, row: int, col: int):
+            """Push env ``env``'s closed fingertips ``slide_length`` from pixel ``(row, col)`` to ``side`` of
+            rotation ``rot``."""
+            ws = self.workspace
+            start = ws.pixel_to_world(row, col, 0.0)
+            start[2] = ws.slide_tip_height(self._height[env], row, col)
+            direction = ws.slide_direction(rot, side)
+            res = yield from self.prims[env].program("slide", start, direction, ws.slide_length)
+            return dict(
+                grasp_success=False, place_success=False, stage=res.stage, reason=res.reason, place_stage="",
+                place_reason="", slide_start=[float(v) for v in start], slide_direction=[float(v) for v in direction],
+                planning_time=res.planning_time,
+            )
 
-    def _judge(self, env, outcome, height_before, height_after):
-        if outcome["primitive"] == "grasp":
-            outcome.update(slide_changed=False, changed_pixels=0, knocked_out=0)
-            return super()._judge(env, outcome, height_before, height_after)
-        n = changed_pixels(height_before, height_after)
-        changed = n > change_threshold(*height_before.shape)
-        knocked_out = self._status(env).count("lost") - self._lost_before[env]
-        outcome.update(slide_changed=changed, changed_pixels=n, knocked_out=knocked_out)
+        return program
+
+    def _judge(self, env, decision, result, before):
+        if decision.primitive == "grasp":
+            return super()._judge(env, decision, result, before)
+        n = changed_pixels(before["height"], self._height[env])
+        changed = n > change_threshold(*before["height"].shape)
+        knocked_out = self.clutter.status(env).count("lost") - before["lost"]
+        outcome = dict(result, slide_changed=changed, changed_pixels=n, knocked_out=knocked_out)
         if knocked_out > 0:  # pushing objects off the workspace is no progress: no reward, and it counts as a failure
             outcome["reason"] = f"the slide knocked {knocked_out} object(s) out of the workspace"
-            return 0.0, False
-        return (self.rewards["slide"] if changed else 0.0), changed
+            return Judgement(0.0, False, outcome)
+        return Judgement(self.rewards["slide"] if changed else 0.0, changed, outcome)

@@ -27,9 +27,11 @@ from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 
+from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion
 from maniskill_pnp.planning.primitives import MotionPrimitives, PrimitiveResult, grasp_pose
 from maniskill_pnp.tasks.bin import build_bin
-from maniskill_pnp.tasks.primitive_env import PrimitiveStepEnv, parse_discrete_action, register_primitive_env
+from maniskill_pnp.tasks.primitive_env import Decision, Judgement, PrimitiveStepEnv
+from maniskill_pnp.tasks.registration import register_task
 from maniskill_pnp.tasks.conveyor_config import (
     ALIGNMENTS, OBJECT_KINDS, REWARD_SCHEMES, SPEEDS, UNKNOWN, ConveyorSpec,
 )
@@ -42,6 +44,8 @@ OBJECT_VARIANTS = {
     "cylinder": ({"radius": 0.02, "half_length": 0.025}, {"radius": 0.017, "half_length": 0.02}),
     "sphere": ({"radius": 0.02}, {"radius": 0.024}),
 }
+#: The primitive each phase's action runs (the action chooses its coordinate).
+PHASE_PRIMITIVES = {"initial": "wait", "pre_pick": "pre_pick", "grasp": "grasp"}
 OBJECT_COLORS = {"cuboid": (0.85, 0.2, 0.15, 1), "cylinder": (0.2, 0.6, 0.25, 1), "sphere": (0.9, 0.7, 0.1, 1)}
 
 
@@ -50,7 +54,7 @@ def _check_choice(name: str, value: str | None, valid: tuple[str, ...]) -> None:
         raise ValueError(f"unknown {name} {value!r}; valid: {list(valid)} or None (random)")
 
 
-@register_primitive_env("ConveyorProximity-v1", max_episode_steps=10)
+@register_task("ConveyorProximity-v1", max_episode_steps=10)
 class ConveyorProximityEnv(PrimitiveStepEnv):
     """**Task Description:**
     Objects (cuboid, cylinder or sphere) ride a conveyor belt toward the Panda one at a time. Ray-type proximity
@@ -59,7 +63,9 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
     arm reaches them with planned motions while the object keeps moving, grasps, and places the object in the bin.
     Phases: ``initial`` (action 0: wait and sense) → ``pre_pick`` → ``grasp`` → ``done``. The observation is one
     discrete state id (phase, sensed speed, sensed alignment, last chosen coordinate); ``info`` decodes it and
-    holds the raw ray readings.
+    holds the raw ray readings. ``info["action_mask"]`` (bool, ``(1, 9)``) marks the actions the phase offers
+    (``env.action_space.sample(mask=info["action_mask"])`` draws one); any other action of ``Discrete(9)`` is a
+    failed attempt: nothing moves, the failure reward, ``info["invalid_action"]``, and the episode ends.
 
     **Randomizations:**
     - object kind (from ``object_kinds``) and size variant; yaw uniform
@@ -73,6 +79,7 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
 
     SUPPORTED_ROBOTS = ["panda"]
     agent: Panda
+    PRIMITIVES = ("wait", "pre_pick", "grasp")
 
     def __init__(
         self,
@@ -220,6 +227,7 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
         )
         self.outcome = "pending"
         self.results: list[PrimitiveResult] = []
+        self.last[0] = self._initial_last()
         self._episode_ready = True
         if self.prims is not None:
             self.prims.reset()
@@ -290,75 +298,93 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
                 self.sensed_speed = SPEEDS[int(np.argmin([abs(v - c) for c in s.speeds]))]
                 self.ray_log["speed_estimate"] = v
 
-    # ------------------------------------------------------------------ reset and step
-    def step(self, action):
-        if not self._episode_ready:
-            raise RuntimeError("call reset() before step()")
-        if self.phase == "done":
-            raise RuntimeError("the episode is over (one object per episode); call reset()")
-        a = self._check_action(action)
+    # ------------------------------------------------------------------ step hooks
+    @property
+    def primitive_programs(self):
+        return {"wait": self._wait_program, "pre_pick": self._pre_pick_program, "grasp": self._grasp_program}
+
+    @property
+    def _lockstep(self) -> LockstepExecutor:
         if self.prims is None:
             self.prims = MotionPrimitives(self, static_actors={"table-workspace", "ground", "bin", "belt"}, seed=self.planner_seed,
                                           on_control_step=self._on_control_step)
-        steps0 = self.prims.executor.sim_steps
-        reward = 0.0
-        if self.phase == "initial":
-            self._wait_for_arrival()
-            self.phase = "pre_pick" if self.sensed_alignment is not None else "done"
-            if self.phase == "done":
-                self.outcome = "missed"
-                reward = self._reward(grasped=False, placed=False)
-        elif self.phase == "pre_pick":
-            self.prepick_choice = self.last_coord = a
-            xyz = self.conveyor.prepick_coords[a]
-            res = self.prims.reach(grasp_pose(xyz, self.conveyor.grasp_yaw))
-            self.results.append(res)
-            if res.ok:
-                self.phase = "grasp"
-            else:
-                self.phase, self.outcome = "done", f"pre-pick failed: {res.stage}: {res.reason}"
-                reward = self._reward(grasped=False, placed=False)
+        return self.prims.executor.lockstep
+
+    def _check_can_step(self) -> None:
+        if self.phase == "done":
+            raise RuntimeError("the episode is over (one object per episode); call reset()")
+
+    def _action_description(self) -> str:
+        return f"one integer index in 0..{self.conveyor.action_n - 1} (the current phase's valid ones: info['action_mask'])"
+
+    def _decode(self, env: int, index: int) -> Decision:
+        primitive = PHASE_PRIMITIVES[self.phase]
+        return Decision(index, primitive, (index,), valid=index < self.conveyor.num_actions[self.phase])
+
+    def _why_invalid(self, env: int) -> str:
+        return f"phase {self.phase!r} has actions 0..{self.conveyor.num_actions[self.phase] - 1}"
+
+    def _on_invalid(self, env: int, decision: Decision) -> None:
+        self.outcome = f"invalid action {decision.index} in phase {self.phase!r}"
+        self.phase = "done"
+
+    def _failure_reward(self, env: int) -> float:
+        return -1.0 if self.reward_scheme in ("negative", "negative_bonus") else 0.0
+
+    def _wait_program(self, env: int, index: int):
+        """Hold the arm still and let the belt run until the sensors have the object's alignment and speed (or the
+        object is gone past the belt's end); then choose a pre-pick coordinate, or miss it."""
+        hold = self.prims.executor.qpos()
+
+        def arrived() -> bool:
+            return (self.sensed_alignment is not None and self.sensed_speed is not None) or self.obj.pose.p[0, 1].item() > self.conveyor.belt_y[1]
+
+        yield Motion(hold[None], settle_tol=None, until=arrived, max_settle=int(self.conveyor.wait_timeout * self.control_freq) - 1)
+        if self.sensed_alignment is None:
+            self.phase, self.outcome = "done", "missed"
         else:
-            self.last_coord = a
-            xyz = self.conveyor.grasp_coord(self.prepick_choice, a)
-            res = self.prims.grasp(grasp_pose(xyz, self.conveyor.grasp_yaw), target=self.obj_name)
-            self.results.append(res)
-            placed = False
-            if res.grasped:
-                place = self.prims.place(self.conveyor.bin.region(), target=self.obj_name)
-                self.results.append(place)
-                placed = place.placed
-                self.outcome = "placed" if placed else f"grasped, place failed: {place.stage}: {place.reason}"
-            else:
-                self.outcome = f"grasp failed: {res.stage}: {res.reason}"
-            self.phase = "done"
-            reward = self._reward(grasped=res.grasped, placed=placed)
-        self._elapsed_steps += 1
-        info = self.get_info()
-        info["sim_steps"] = self.prims.executor.sim_steps - steps0
-        obs = self.get_obs(info)
-        terminated = torch.tensor([self.phase == "done"], device=self.device)
-        truncated = torch.zeros(1, dtype=torch.bool, device=self.device)
-        reward_t = torch.tensor([reward], dtype=torch.float32, device=self.device)
-        self._last_obs = obs
-        return obs, reward_t, terminated, truncated, info
+            self.phase = "pre_pick"
+        return dict(grasp_success=False, place_success=False)
 
-    def _check_action(self, action) -> int:
-        """The action as a phase-valid int index; ValueError (naming the phase and valid range) otherwise."""
-        n = self.conveyor.num_actions[self.phase]
-        return parse_discrete_action(action, n, f"an integer index valid in phase {self.phase!r}: 0..{n - 1}")
+    def _pre_pick_program(self, env: int, index: int):
+        """Reach pre-pick coordinate ``index`` above the belt."""
+        self.prepick_choice = self.last_coord = index
+        res = yield from self.prims.program("reach", grasp_pose(self.conveyor.prepick_coords[index], self.conveyor.grasp_yaw))
+        self.results.append(res)
+        if res.ok:
+            self.phase = "grasp"
+        else:
+            self.phase, self.outcome = "done", f"pre-pick failed: {res.stage}: {res.reason}"
+        return dict(grasp_success=False, place_success=False, reached=bool(res.ok))
 
-    def _wait_for_arrival(self):
-        """Hold the arm still and let the belt run until the second gate fires (or the object is gone)."""
-        ex = self.prims.executor
-        hold = ex.qpos()
-        max_steps = int(self.conveyor.wait_timeout * self.control_freq)
-        for _ in range(max_steps):
-            if self.sensed_alignment is not None and self.sensed_speed is not None:
-                return
-            if self.obj.pose.p[0, 1].item() > self.conveyor.belt_y[1]:
-                return
-            ex.step(hold)
+    def _grasp_program(self, env: int, index: int):
+        """Descend to grasp coordinate ``index`` under the chosen pre-pick coordinate, close, lift, and place a
+        grasped object in the bin."""
+        self.last_coord = index
+        xyz = self.conveyor.grasp_coord(self.prepick_choice, index)
+        res = yield from self.prims.program("grasp", grasp_pose(xyz, self.conveyor.grasp_yaw), target=self.obj_name)
+        self.results.append(res)
+        placed = False
+        if res.grasped:
+            place = yield from self.prims.program("place", self.conveyor.bin.region(), target=self.obj_name)
+            self.results.append(place)
+            placed = place.placed
+            self.outcome = "placed" if placed else f"grasped, place failed: {place.stage}: {place.reason}"
+        else:
+            self.outcome = f"grasp failed: {res.stage}: {res.reason}"
+        self.phase = "done"
+        return dict(grasp_success=bool(res.grasped), place_success=bool(placed))
+
+    def _judge(self, env: int, decision: Decision, result: dict, before) -> Judgement:
+        if decision.primitive == "grasp":
+            reward = self._reward(grasped=result["grasp_success"], placed=result["place_success"])
+            return Judgement(reward, result["place_success"], result)
+        if self.phase == "done":  # missed, or the pre-pick coordinate could not be reached
+            return Judgement(self._reward(grasped=False, placed=False), False, result)
+        return Judgement(0.0, True, result)
+
+    def _episode_end(self, faults):
+        return np.array([self.phase == "done"]), np.zeros(1, dtype=bool)
 
     # ------------------------------------------------------------------ observation, evaluation, reward
     def state_id(self) -> int:
@@ -368,22 +394,23 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
     def get_obs(self, info: dict | None = None, unflattened: bool = False):
         return torch.tensor([self.state_id()], dtype=torch.int64, device=self.device)
 
-    def evaluate(self):
-        if not getattr(self, "_episode_ready", False):
-            return {}
+    def _env_info(self, env: int) -> dict:
         region = self.conveyor.bin.region()
         p = self.obj.pose.p[0].cpu().numpy()
+        mask = np.zeros(self.conveyor.action_n, dtype=bool)
+        if self.phase != "done":
+            mask[: self.conveyor.num_actions[self.phase]] = True
         return dict(
-            success=torch.tensor([self.outcome == "placed"], device=self.device),
-            fail=torch.tensor([self.phase == "done" and self.outcome != "placed"], device=self.device),
+            success=self.outcome == "placed",
+            fail=self.phase == "done" and self.outcome != "placed",
             phase=self.phase,
             sensed_speed=self.sensed_speed or UNKNOWN,
             sensed_alignment=self.sensed_alignment or UNKNOWN,
             last_coord=-1 if self.last_coord is None else self.last_coord,
-            valid_actions=self.conveyor.num_actions[self.phase],
+            action_mask=mask,
             outcome=self.outcome,
             rays={k: list(v) if isinstance(v, list) else v for k, v in self.ray_log.items()},
-            object_in_bin=region.contains(p, margin=0.01),
+            object_in_bin=bool(region.contains(p, margin=0.01)),
             truth=dict(self.truth),
         )
 
@@ -404,8 +431,3 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
             return False
         return self.conveyor.best(self.sensed_alignment, self.sensed_speed) == (self.prepick_choice, self.last_coord)
 
-    def compute_dense_reward(self, obs, action, info):
-        return info["success"].float()
-
-    def compute_normalized_dense_reward(self, obs, action, info):
-        return self.compute_dense_reward(obs, action, info)

@@ -16,17 +16,17 @@ from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.building import actors
-from mani_skill.utils.registration import register_env
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from mani_skill.utils.structs.pose import Pose
 
 from maniskill_pnp.tasks.bin import BinSpec, build_bin
+from maniskill_pnp.tasks.registration import SeededNpRandom, register_task
 
 ROBOT_BASE = (-0.615, 0.0, 0.0)
 
 
-@register_env("CubeToBin-v1", max_episode_steps=400)
-class CubeToBinEnv(BaseEnv):
+@register_task("CubeToBin-v1", max_episode_steps=400)
+class CubeToBinEnv(SeededNpRandom, BaseEnv):
     """**Task Description:**
     Pick up a cube lying on the table and drop it into the bin beside the workspace, with ManiSkill's Panda.
 
@@ -61,6 +61,9 @@ class CubeToBinEnv(BaseEnv):
         self.bin_spec = bin_spec
         self.obstacle_boxes = tuple(obstacles)
         self.robot_init_qpos_noise = robot_init_qpos_noise
+        # Every reset draws the cube under a torch RNG forked from the episode seed, so a seeded reset followed by
+        # unseeded ones is reproducible (gymnasium's contract; ManiSkill's default seeds only seeded resets).
+        kwargs.setdefault("enhanced_determinism", True)
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
 
     @property

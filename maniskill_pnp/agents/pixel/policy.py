@@ -3,7 +3,7 @@
 The env (e.g. ``ClutterGrasp-v1`` through :func:`~maniskill_pnp.torchrl_env.make_torchrl_env`) observes
 ``"color_heightmap"`` (uint8 ``(*B, H, W, 3)``) and ``"depth_heightmap"`` (float32 ``(*B, H, W)``, metres above the
 table). :func:`heightmap_input` turns them into the network input ``(*B, 4, H, W)`` (RGB in 0..1, height), the
-``"observation"`` that :class:`~maniskill_pnp.agents.pixel_loss.PixelDQNLoss` and the replay buffer use.
+``"observation"`` that :class:`~maniskill_pnp.agents.pixel.loss.PixelDQNLoss` and the replay buffer use.
 
 Tensordict keys of the actor:
 
@@ -19,7 +19,7 @@ key                     meaning                                                 
                         ``explore_weights``)
 ======================= ============================================================================ ==========
 
-With an ``action_mask`` (e.g. :class:`~maniskill_pnp.agents.pixel_mask.HeightmapActionMask`) the argmax and the
+With an ``action_mask`` (e.g. :class:`~maniskill_pnp.agents.pixel.mask.HeightmapActionMask`) the argmax and the
 ε-random action both range over the allowed actions only.
 
 A uniform draw over the allowed actions gives each primitive a share proportional to its count of allowed pixels:
@@ -61,7 +61,7 @@ class GreedyPixelActor(nn.Module):
 
     Args:
         q_network: ``(N, 4, H, W) -> (N, *action_shape)``, e.g. a
-            :class:`~maniskill_pnp.agents.pixel_fcn.MultiPrimitiveQNetwork` (``(N, P, R, H, W)``).
+            :class:`~maniskill_pnp.agents.pixel.fcn.MultiPrimitiveQNetwork` (``(N, P, R, H, W)``).
         action_mask: Optional ``height (*B, H, W) -> bool (*B, P*R*H*W)``; the argmax skips masked-out actions
             and the mask is returned as a third output.
     """

@@ -20,9 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from maniskill_pnp.agents.clutter_eval import SCENARIOS, decide, is_scenario, load_policy, scenario_options
-from maniskill_pnp.agents.clutter_recipe import checkpoint_file, make_env
+from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file
+from maniskill_pnp.agents.pixel.evaluate import decide
+from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_policy, make_env
 from maniskill_pnp.agents.run_io import require_positive, write_json
+from maniskill_pnp.agents.video_frames import even_frame, label
 from maniskill_pnp.runtime import resolve_device
 
 #: Side (px) of each heightmap / Q-map panel in the video and the strip.
@@ -105,16 +107,6 @@ def draw_action(img: np.ndarray, decision: dict, heightmap_size: int) -> np.ndar
     return out
 
 
-def label(img: np.ndarray, text: str) -> np.ndarray:
-    """``img`` with ``text`` on a dark band at the top."""
-    import cv2
-
-    out = np.ascontiguousarray(img.copy())
-    cv2.rectangle(out, (0, 0), (out.shape[1], 20), (0, 0, 0), -1)
-    cv2.putText(out, text, (4, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
-    return out
-
-
 def decision_panels(decision: dict, heightmap_size: int) -> list[np.ndarray]:
     """Colour heightmap, depth heightmap, Q map of the chosen primitive and rotation, and the action on the heightmap."""
     depth = decision["depth"]
@@ -154,12 +146,13 @@ def _text(img: np.ndarray, text: str, y: int) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- episode
-def describe(env, action: int, maps: np.ndarray, obs: dict, primitives: tuple[str, ...], index: int) -> dict:
-    """The decision ``action`` of the unwrapped task ``env`` for drawing: pixel, primitive, direction and length."""
+def describe(env, action: int, maps: np.ndarray, obs: dict, index: int) -> dict:
+    """The decision ``action`` of the task ``env`` for drawing: pixel, primitive (decoded by the task's
+    ``action_layout``), direction and length."""
     task = env.unwrapped
     ws = task.workspace
     p, r, row, col = (int(v) for v in task.action_layout.decode(action))
-    name = primitives[p]
+    name = task.primitive_names[p]
     yaw = float(ws.rotation_to_yaw(r))
     if name == "grasp":
         direction, length = np.array([math.cos(yaw), math.sin(yaw)]), JAW_SPAN / ws.pixel_size
@@ -170,14 +163,21 @@ def describe(env, action: int, maps: np.ndarray, obs: dict, primitives: tuple[st
                 color=obs["color_heightmap"][0].cpu().numpy(), depth=obs["depth_heightmap"][0].cpu().numpy())
 
 
-def outcome_lines(info: dict, reward: float) -> list[str]:
+def outcome_lines(info: dict, reward: float, primitive: str) -> list[str]:
+    """The outcome of a decision of ``primitive`` as text lines, from the step's ``info``."""
     lines = [f"reward {reward:.2f}", f"grasped {bool(info['grasp_success'])}", f"placed {bool(info['place_success'])}"]
-    if "slide_changed" in info and info.get("primitive") != "grasp":
+    if primitive != "grasp":
         lines.append(f"scene changed {bool(info['slide_changed'])}")
     lines.append(f"left {int(info['objects_remaining'])} objects")
-    if info.get("reason"):
-        lines.append(str(info["reason"])[:34])
+    reason = _reason(info)
+    if reason:
+        lines.append(reason[:34])
     return lines
+
+
+def _reason(info: dict) -> str:
+    """Why the step failed or the episode cannot go on (empty when neither)."""
+    return str(info.get("fault_reason") or info.get("reason") or "")
 
 
 def run(cfg: ClutterVideoConfig) -> dict:
@@ -191,8 +191,7 @@ def run(cfg: ClutterVideoConfig) -> dict:
 
     device = resolve_device(cfg.device)
     actor, train_cfg, counters = load_policy(cfg.checkpoint_path, device, grasp_only=cfg.grasp_only)
-    primitives = actor.q_network.primitives
-    torchrl_env = make_env(train_cfg, render_mode="rgb_array", **scenario_options(cfg.scenario, train_cfg.task))
+    torchrl_env = make_env(train_cfg, cfg.scenario, render_mode="rgb_array")
     env = torchrl_env.maniskill_env
     size = train_cfg.heightmap_size
     frames: list[np.ndarray] = []
@@ -212,19 +211,19 @@ def run(cfg: ClutterVideoConfig) -> dict:
         done = False
         while not done and len(decisions) < cfg.max_steps:
             action, maps = decide(actor, obs, device)
-            decision = describe(env, action, maps.numpy(), obs, primitives, len(decisions))
+            decision = describe(env, action, maps.numpy(), obs, len(decisions))
             panels = decision_panels(decision, size)
             scene = env.render()[0].cpu().numpy()
             side = np.concatenate([panels[3], panels[2]], axis=0)  # action on the heightmap above its Q map
             current[:] = [_fit_height(side, scene.shape[0])]
             frames.append(np.concatenate([scene, current[0]], axis=1))
             obs, reward, terminated, truncated, info = env.step(action)
-            decision["outcome_lines"] = outcome_lines(info, float(reward.item()))
+            decision["outcome_lines"] = outcome_lines(info, float(reward.item()), decision["primitive"])
             decisions.append(decision)
             records.append(dict(decision=decision["index"], primitive=decision["primitive"], rotation=decision["rotation"],
                                 row=decision["row"], col=decision["col"], q=decision["q"], reward=float(reward.item()),
                                 grasp_success=bool(info["grasp_success"]), place_success=bool(info["place_success"]),
-                                objects_remaining=int(info["objects_remaining"]), reason=str(info.get("reason", ""))))
+                                objects_remaining=int(info["objects_remaining"]), reason=_reason(info)))
             done = bool(terminated.item() or truncated.item())
         env.unwrapped.set_control_step_callback(None)
     finally:
@@ -252,9 +251,4 @@ def _fit_height(img: np.ndarray, height: int) -> np.ndarray:
     return cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)
 
 
-def even_frame(frame: np.ndarray) -> np.ndarray:
-    """Crop to even sides (H.264 with yuv420p needs them)."""
-    return frame[: frame.shape[0] // 2 * 2, : frame.shape[1] // 2 * 2]
-
-
-__all__ = ["ClutterVideoConfig", "colorize", "even_frame", "label", "decision_panels", "decisions_strip", "describe", "draw_action", "run"]
+__all__ = ["ClutterVideoConfig", "colorize", "decision_panels", "decisions_strip", "describe", "draw_action", "run"]

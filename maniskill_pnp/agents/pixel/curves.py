@@ -1,9 +1,9 @@
 """Training curves of clutter runs: windowed grasp success and success rate from each run's ``actions.csv``.
 
-Every clutter run (:mod:`maniskill_pnp.agents.clutter_recipe`) writes one row per action of its ε-greedy behaviour.
-From it this module computes the trailing-window metrics of DESIGN.md (``grasp_success``: grasps that lifted an
-object / grasp attempts; ``success_rate``: objects placed / actions), the first- and last-window numbers a learning
-claim rests on, and one PNG comparing runs (as the thesis' Figs. 25-28 compare its variants).
+Every clutter run (:mod:`maniskill_pnp.agents.pixel.recipe`) writes one row per action of its ε-greedy behaviour.
+From it this module computes the trailing-window metrics of ``docs/metrics.md`` (``grasp_success``: grasps that
+lifted an object / grasp attempts; ``success_rate``: objects placed / actions), the first- and last-window numbers a
+learning claim rests on, and one PNG comparing runs (as the thesis' Figs. 25-28 compare its variants).
 
 Example:
     >>> summary = plot_training_curves({"G&S": "runs/clutter/gs-cpu-small_...", "grasp only": "runs/..."},
@@ -17,28 +17,35 @@ from pathlib import Path
 
 import numpy as np
 
-from maniskill_pnp.agents.clutter_recipe import ACTION_COLUMNS
+from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS
+
+
+#: The columns of ``actions.csv`` the curves need (a run folder of an older version, with fewer columns, has them).
+CURVE_COLUMNS = ("step", "grasp_attempt", "grasped", "placed")
 
 
 def load_actions(run_dir: str | Path) -> dict[str, np.ndarray]:
-    """The columns of ``<run_dir>/actions.csv`` as arrays (``ACTION_COLUMNS``).
+    """The columns of ``<run_dir>/actions.csv`` as float arrays, by header name (normally
+    :data:`~maniskill_pnp.agents.pixel.metrics.ACTION_COLUMNS`; an empty cell is NaN).
 
     Raises:
         FileNotFoundError: the run folder has no ``actions.csv``.
-        ValueError: the file's header is not ``ACTION_COLUMNS`` or it holds no action.
+        ValueError: the file lacks a column of :data:`CURVE_COLUMNS` or holds no action.
     """
     path = Path(run_dir) / "actions.csv"
     if not path.is_file():
         raise FileNotFoundError(f"{path} does not exist (is {run_dir} a clutter training run folder?)")
     with open(path, newline="") as f:
         rows = list(csv.reader(f))
-    if not rows or tuple(rows[0]) != ACTION_COLUMNS:
-        raise ValueError(f"{path} does not start with the header {','.join(ACTION_COLUMNS)}")
-    body = [r for r in rows[1:] if len(r) == len(ACTION_COLUMNS)]
+    header = rows[0] if rows else []
+    missing = [c for c in CURVE_COLUMNS if c not in header]
+    if missing:
+        raise ValueError(f"{path} lacks the columns {missing} (its header should be {','.join(ACTION_COLUMNS)})")
+    body = [r for r in rows[1:] if len(r) == len(header)]
     if not body:
         raise ValueError(f"{path} holds no action yet")
-    cols = np.array(body, dtype=np.float64).T
-    return {name: cols[i] for i, name in enumerate(ACTION_COLUMNS)}
+    cols = np.array([[float(v) if v != "" else np.nan for v in r] for r in body], dtype=np.float64).T
+    return {name: cols[i] for i, name in enumerate(header)}
 
 
 def trailing_mean(hits: np.ndarray, counts: np.ndarray, window: int) -> np.ndarray:
@@ -107,4 +114,4 @@ def plot_training_curves(runs: dict[str, str | Path], out_png: str | Path, windo
     return summary
 
 
-__all__ = ["load_actions", "plot_training_curves", "run_curves", "trailing_mean"]
+__all__ = ["CURVE_COLUMNS", "load_actions", "plot_training_curves", "run_curves", "trailing_mean"]

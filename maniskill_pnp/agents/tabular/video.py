@@ -17,10 +17,10 @@ import numpy as np
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-from maniskill_pnp.agents.clutter_video import even_frame, label
-from maniskill_pnp.agents.conveyor_recipe import load_qtable, make_env, qtable_file
 from maniskill_pnp.agents.run_io import require_positive, write_json
-from maniskill_pnp.agents.tabular import make_qtable_policy
+from maniskill_pnp.agents.tabular.qtable import make_qtable_policy
+from maniskill_pnp.agents.tabular.recipe import load_qtable, make_env, qtable_file
+from maniskill_pnp.agents.video_frames import even_frame, label
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, SPEEDS
 
 
@@ -92,8 +92,7 @@ def run(cfg: ConveyorVideoConfig) -> dict:
                 info = task.evaluate()
                 phase = info["phase"]
                 td = policy(td)
-                chosen = td.get("action").reshape(-1)
-                action = int(chosen.argmax()) if chosen.numel() > 1 else int(chosen)  # one-hot or index
+                action = int(td.get("action").reshape(-1)[0])
                 caption[0] = f"{phase}: action {action} | sensed speed {info['sensed_speed']}, lane {info['sensed_alignment']}"
                 frames.append(label(task.render()[0].cpu().numpy(), caption[0]))
                 td = env.step(td)

@@ -1,4 +1,4 @@
-"""Tabular TD(0) control on TorchRL: a Q-table policy, action masks from the state id, Q-learning and SARSA.
+"""Tabular TD(0) control on TorchRL: a Q-table policy masked by the env's action mask, Q-learning and SARSA.
 
 The library part of the conveyor recipe (thesis chapter 4), written against TorchRL's tensordict contract so that
 the table plugs into TorchRL's collectors and exploration modules like any Q-value network:
@@ -6,9 +6,10 @@ the table plugs into TorchRL's collectors and exploration modules like any Q-val
 * :class:`QTable` is a ``nn.Module`` ``observation (int64 state id) -> action_value``; :func:`make_qtable_policy`
   wraps it with :class:`~torchrl.modules.QValueModule` (greedy over the *valid* actions) and, for exploration,
   :class:`~torchrl.modules.EGreedyModule` (random valid action with probability ε).
-* :class:`StateActionMask` is a TorchRL transform that writes ``"action_mask"`` from the state id through a
-  ``[num_states, num_actions]`` table of valid actions, so random actions (``check_env_specs``, ``rollout``)
-  and ε-greedy draws respect the task's phases when chained with :class:`~torchrl.envs.transforms.ActionMask`.
+* The valid actions are the env's own ``"action_mask"`` entry (bool, ``[*batch, num_actions]``): the task reports
+  the actions valid in its current phase, and the TorchRL env carries them next to the observation. Both policies
+  read it from the tensordict they act on; chained with :class:`~torchrl.envs.transforms.ActionMask`, the env's
+  action spec follows it too, so random actions (``check_env_specs``, ``rollout``) respect the task's phases.
 * :func:`td_update` applies ``Q(s, a) += α (r + γ (1 - terminal) B(s', a') - Q(s, a))`` where the bootstrap
   term ``B`` is the one place where the algorithms differ (see :data:`BOOTSTRAPS`).
 
@@ -36,8 +37,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
-from torchrl.data import Binary, Categorical, Composite, TensorSpec
-from torchrl.envs.transforms import Transform
+from torchrl.data import Categorical, TensorSpec
 from torchrl.modules import EGreedyModule, QValueModule
 
 ALGORITHMS = ("qlearning", "sarsa")
@@ -75,40 +75,6 @@ class QTable(nn.Module):
         return self.values[observation.long()]
 
 
-class StateActionMask(Transform):
-    """Writes ``"action_mask"`` (bool, ``[*batch, num_actions]``) looked up from the state id in ``"observation"``.
-
-    Chain it with TorchRL's :class:`~torchrl.envs.transforms.ActionMask` so that the env's action spec follows the
-    mask and ``env.rand_action`` / ``check_env_specs`` draw only valid actions.
-
-    Args:
-        valid: ``[num_states, num_actions]`` bool table; ``valid[s, a]`` is True when ``a`` may be taken in ``s``.
-            A row with no valid action (a terminal state) gives an all-False mask.
-        in_key: Key of the int64 state id.
-        out_key: Key the mask is written to.
-    """
-
-    def __init__(self, valid: torch.Tensor, *, in_key: str = "observation", out_key: str = "action_mask"):
-        if valid.dtype != torch.bool or valid.ndim != 2:
-            raise ValueError(f"valid must be a 2-D bool table [num_states, num_actions], got {valid.dtype} {tuple(valid.shape)}")
-        super().__init__(in_keys=[in_key], out_keys=[out_key])
-        self.register_buffer("valid", valid.clone())
-
-    def _apply_transform(self, observation: torch.Tensor) -> torch.Tensor:
-        return self.valid[observation.long()]
-
-    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict_reset)
-
-    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        state = observation_spec[self.in_keys[0]]
-        n = self.valid.shape[1]
-        observation_spec[self.out_keys[0]] = Binary(
-            n=n, shape=state.shape + (n,), device=state.device, dtype=torch.bool
-        )
-        return observation_spec
-
-
 def make_qtable_policy(
     table: QTable,
     action_spec: TensorSpec,
@@ -127,8 +93,10 @@ def make_qtable_policy(
             call ``egreedy.step(frames)`` after each collected batch.
 
     Returns:
-        ``(greedy, explore, egreedy)``; both policies read ``"observation"`` and ``"action_mask"`` and write
-        ``"action_value"``, ``"action"`` and ``"chosen_action_value"``.
+        ``(greedy, explore, egreedy)``; both policies read ``"observation"`` and ``"action_mask"`` (the env's valid
+        actions) and write ``"action_value"``, ``"action"`` and ``"chosen_action_value"``. Neither ever picks a
+        masked action. A state whose mask is all False (the episode is over) takes no action: the ε-greedy draw
+        needs at least one valid action.
     """
     if not isinstance(action_spec, Categorical):
         raise TypeError(f"a Q-table policy needs a Categorical action spec, got {type(action_spec).__name__}")

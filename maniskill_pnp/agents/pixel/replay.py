@@ -3,7 +3,8 @@
 A heightmap ``(..., 4, H, W)`` (RGB in 0..1, height in metres) is stored as ``"color"`` (uint8, ``(..., 3, H, W)``)
 and ``"height"`` (float16, ``(..., 1, H, W)``): 5 bytes per pixel instead of 16. :func:`pack` / :func:`unpack`
 convert one heightmap batch; :func:`pack_transition` / :func:`unpack_transition` convert the ``"observation"``
-and ``("next", "observation")`` entries of a transition tensordict.
+and ``("next", "observation")`` entries of a transition tensordict; :func:`to_transitions` turns collector frames
+into those transitions.
 
 Example:
     >>> rb = make_pixel_replay(capacity=1000, scratch_dir=tmp, batch_size=8)  # doctest: +SKIP
@@ -20,7 +21,28 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import LazyMemmapStorage, TensorDictPrioritizedReplayBuffer
 
+from maniskill_pnp.agents.pixel.policy import heightmap_input
+
 _OBS_KEYS = ("observation", ("next", "observation"))
+
+
+def to_transitions(batch: TensorDictBase) -> TensorDict:
+    """Flat collector frames -> the transitions the loss reads (heightmap ``"observation"`` built from the env keys)."""
+    nxt = batch.get("next")
+    n = batch.batch_size[0]
+    return TensorDict(
+        {
+            "observation": heightmap_input(batch.get("color_heightmap"), batch.get("depth_heightmap")),
+            "action": batch.get("action").reshape(n),
+            "next": {
+                "observation": heightmap_input(nxt.get("color_heightmap"), nxt.get("depth_heightmap")),
+                "reward": nxt.get("reward").reshape(n),
+                "terminated": nxt.get("terminated").reshape(n),
+                "done": nxt.get("done").reshape(n),
+            },
+        },
+        batch_size=[n],
+    )
 
 
 def pack(obs: torch.Tensor) -> TensorDict:

@@ -1,20 +1,22 @@
-"""Greedy evaluation of a clutter DQN checkpoint (thesis parts II and III), with the DESIGN.md metrics per scenario.
+"""Greedy evaluation of a clutter DQN checkpoint (thesis parts II and III), with the metrics of ``docs/metrics.md``
+per scenario.
 
-The network of a ``checkpoint.pt`` written by :func:`~maniskill_pnp.agents.clutter_recipe.save_checkpoint` is rebuilt
-from the checkpoint's own config and run greedily (argmax of the Q maps, no ε) over seeded scenes: episode ``i`` is
-reset with seed ``seed + i``. The default seed 1000 keeps the test scenes apart from the small seeds training uses.
+The network of a ``checkpoint.pt`` written by :func:`~maniskill_pnp.agents.pixel.checkpoint.save_checkpoint` is
+rebuilt from the checkpoint's own config (:func:`~maniskill_pnp.agents.pixel.factories.load_policy`) and run
+greedily (argmax of the Q maps, no ε) over seeded scenes: episode ``i`` is reset with seed ``seed + i``. The default seed 1000 keeps the test scenes apart from the small seeds training uses.
 An episode ends when the workspace is clear, when the task truncates it (too many consecutive failures or
 actions) or after ``max_steps`` actions. The policy acts under the action mask its training used (grasps only where
-there is material, see :mod:`~maniskill_pnp.agents.pixel_mask`); ``grasp_only`` also masks out a G&S agent's
+there is material, see :mod:`~maniskill_pnp.agents.pixel.mask`); ``grasp_only`` also masks out a G&S agent's
 slides, the thesis' grasp-only comparison on the same network. With ``avoid_repeats`` the policy never repeats an
 action that failed since the last success (pure argmax without it: a failure that leaves the scene unchanged leaves
 the argmax unchanged, so one failing action can repeat until the failure limit ends the episode).
 
 Scenarios (``scenarios``, one table row each, like the thesis' Table IX): ``"train"`` (the checkpoint's object
 count), an object count such as ``"10"``, a density preset of the task (``"min"``, ``"medium"``, ``"max"``) or
-``"complicated"`` (ClutterGraspSlide-v1's hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset).
+``"complicated"`` (ClutterGraspSlide-v1's hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset);
+see :data:`~maniskill_pnp.agents.pixel.factories.SCENARIOS`.
 
-Metrics (DESIGN.md names, computed from the env's ``info`` of every step):
+Metrics (``docs/metrics.md``, computed from the env's ``info`` of every step):
 
 * ``success_rate`` (thesis): objects placed in the bin / actions, per episode, averaged over episodes.
 * ``grasp_success``: successful grasps / grasp attempts, over all episodes.
@@ -48,29 +50,24 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from maniskill_pnp.agents.clutter_recipe import ClutterConfig, checkpoint_file, load_checkpoint, make_action_mask, make_env, make_model
-from maniskill_pnp.agents.pixel_fcn import rotation_angles
-from maniskill_pnp.agents.pixel_policy import GreedyPixelActor
+from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file
+from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_policy, make_env
+from maniskill_pnp.agents.pixel.fcn import rotation_angles
+from maniskill_pnp.agents.pixel.metrics import is_grasp_attempt
+from maniskill_pnp.agents.pixel.policy import GreedyPixelActor
 from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
 from maniskill_pnp.runtime import resolve_device
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 
 #: Longest run of consecutive failed grasps a completed episode may contain (VPG's completion criterion).
 MAX_FAILURE_RUN = 10
-#: Names of the metrics, in table order (DESIGN.md, "Metrics").
+#: Names of the metrics, in table order (``docs/metrics.md``).
 METRICS = ("success_rate", "grasp_success", "completion", "action_efficiency")
-#: Scenario names besides an object count (see the module docstring).
-SCENARIOS = ("train", "min", "medium", "max", "complicated")
 #: Columns of the per-episode table.
 EPISODE_COLUMNS = ("scenario", "seed", "objects", "actions", "grasp_attempts", "grasps", "placed", "lost", "cleared",
                    "max_failure_run", "success_rate", "grasp_success")
 #: Columns of the per-scenario table (Table IX).
 SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS)
-
-
-def is_scenario(name: str) -> bool:
-    """Whether ``name`` is a scenario: one of :data:`SCENARIOS` or a positive object count."""
-    return name in SCENARIOS or (name.isdigit() and int(name) > 0)
 
 
 @dataclass(frozen=True)
@@ -134,48 +131,9 @@ class ClutterEvalConfig:
         return d
 
 
-# ----------------------------------------------------------------------------- model
-def load_policy(path: Path, device: torch.device, grasp_only: bool = False) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
-    """The greedy actor of a checkpoint (network in eval mode on ``device``, the training's action mask, and with
-    ``grasp_only`` only the grasp primitive enabled), its training config and counters.
-
-    Raises:
-        FileNotFoundError: ``path`` does not exist.
-        ValueError: ``path`` is not a readable clutter DQN checkpoint, or its weights do not fit its config.
-    """
-    payload = load_checkpoint(path)
-    try:
-        train_cfg = ClutterConfig.from_json(payload["config"])
-        state = payload["model"]
-    except (KeyError, TypeError, ValueError) as e:
-        raise ValueError(f"checkpoint {path} has no usable config or model: {e}") from e
-    # The checkpoint's weights replace any initialisation: do not read a pretrained file that may be gone by now.
-    train_cfg = dataclasses.replace(train_cfg, pretrained_path=None)
-    model = make_model(train_cfg)
-    try:
-        model.load_state_dict(state)
-    except RuntimeError as e:
-        raise ValueError(f"checkpoint {path}: the weights do not fit the network of its config: {e}") from e
-    model.to(device).eval()
-    mask = make_action_mask(train_cfg, enabled=("grasp",) if grasp_only else None)
-    return GreedyPixelActor(model, mask), train_cfg, dict(payload.get("counters", {}))
-
-
-def scenario_options(name: str, task: str) -> dict:
-    """Task keyword arguments of a scenario (see the module docstring)."""
-    if name == "train":
-        return {}
-    if name.isdigit():
-        return dict(num_objects=int(name))
-    if name == "complicated" and task == "grasp_slide":
-        return dict(layout="complicated")
-    return dict(num_objects=name)
-
-
-
 # ----------------------------------------------------------------------------- metrics
 def summarize(episodes: list[dict]) -> dict:
-    """The DESIGN.md metrics (see the module docstring) of per-episode records from :func:`run_episode`."""
+    """The metrics (see the module docstring) of per-episode records from :func:`run_episode`."""
     attempts = sum(e["grasp_attempts"] for e in episodes)
     completed = [e for e in episodes if e["cleared"] and e["max_failure_run"] <= MAX_FAILURE_RUN]
     completed_actions = sum(e["actions"] for e in completed)
@@ -204,12 +162,35 @@ def decide(actor: GreedyPixelActor, obs: dict, device: torch.device, exclude: Co
     return int(action.reshape(-1)[0]), maps.float().cpu()
 
 
+@dataclass
+class EpisodeTally:
+    """The per-step accounting of one episode, from the env's ``info`` of every step (the outcome keys of
+    :data:`~maniskill_pnp.tasks.OUTCOME_KEYS`; grasp attempts by the rule of
+    :func:`~maniskill_pnp.agents.pixel.metrics.is_grasp_attempt`, as the training metrics count them)."""
+
+    primitives: tuple[str, ...]
+    """The task's primitive names, in primitive-index order."""
+    actions: int = 0
+    grasp_attempts: int = 0
+    grasps: int = 0
+    placed: int = 0
+    max_failure_run: int = 0
+
+    def add(self, info: dict) -> None:
+        """Count one step's ``info``."""
+        self.actions += 1
+        self.grasp_attempts += int(is_grasp_attempt(self.primitives, int(info["primitive_index"])))
+        self.grasps += int(info["grasp_success"])
+        self.placed += int(info["place_success"])
+        self.max_failure_run = max(self.max_failure_run, int(info["consecutive_failures"]))
+
+
 def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, max_steps: int | None,
                 on_step=None, scenario: str = "train", avoid_repeats: bool = False) -> tuple[dict, dict]:
     """One greedy episode of the gymnasium env ``env`` from ``reset(seed=seed)``.
 
     Args:
-        on_step: Called with the step's ``info`` after every grasp (the progress bar's hook).
+        on_step: Called with the step's ``info`` after every action (the progress bar's hook).
         avoid_repeats: Mask out the actions that failed since the last success (see :class:`ClutterEvalConfig`).
 
     Returns:
@@ -217,21 +198,17 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
     """
     obs, info = env.reset(seed=seed)
     objects = int(info["num_objects"])
+    tally = EpisodeTally(env.unwrapped.primitive_names)
     first = None
-    actions = attempts = grasps = placed = max_run = 0
     done = False
     failed = []  # actions that failed since the last success
-    while not done and (max_steps is None or actions < max_steps):
+    while not done and (max_steps is None or tally.actions < max_steps):
         action, maps = decide(actor, obs, device, exclude=failed if avoid_repeats else ())
         if first is None:
             first = dict(color=obs["color_heightmap"][0].cpu().numpy(), depth=obs["depth_heightmap"][0].cpu().numpy(),
                          maps=maps.numpy(), action=action)
         obs, _, terminated, truncated, info = env.step(action)
-        actions += 1
-        attempts += int(env.unwrapped.action_layout.decode(action)[0] == 0)  # primitive 0 is the grasp
-        grasps += int(info["grasp_success"])
-        placed += int(info["place_success"])
-        max_run = max(max_run, int(info["consecutive_failures"]))
+        tally.add(info)
         if int(info["consecutive_failures"]) > 0:
             failed.append(action)
         else:
@@ -239,10 +216,12 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         done = bool(terminated.item() or truncated.item())
         if on_step is not None:
             on_step(info)
+    t = tally
     record = dict(
-        scenario=scenario, seed=seed, objects=objects, actions=actions, grasp_attempts=attempts, grasps=grasps,
-        placed=placed, lost=int(info["lost_objects"]), cleared=bool(info["success"].item()), max_failure_run=max_run,
-        success_rate=placed / actions, grasp_success=grasps / attempts if attempts else 0.0,
+        scenario=scenario, seed=seed, objects=objects, actions=t.actions, grasp_attempts=t.grasp_attempts, grasps=t.grasps,
+        placed=t.placed, lost=int(info["lost_objects"]), cleared=bool(info["success"].item()),
+        max_failure_run=t.max_failure_run, success_rate=t.placed / t.actions,
+        grasp_success=t.grasps / t.grasp_attempts if t.grasp_attempts else 0.0,
     )
     return record, first
 
@@ -346,13 +325,13 @@ def run(cfg: ClutterEvalConfig) -> dict:
     with tqdm(total=cfg.episodes * len(cfg.scenarios), desc=f"eval {train_cfg.run_name}", unit="episode") as bar:
 
         def on_step(info):
-            if info.get("primitive", "grasp") == "grasp":
+            if is_grasp_attempt(primitives, int(info["primitive_index"])):
                 outcomes.append(bool(info["grasp_success"]))
             bar.set_postfix(grasp=f"{sum(outcomes) / max(1, len(outcomes)):.2f}", attempts=len(outcomes))
 
         for scenario in cfg.scenarios:
             bar.set_description(f"eval {scenario}")
-            torchrl_env = make_env(env_cfg, **scenario_options(scenario, train_cfg.task))
+            torchrl_env = make_env(env_cfg, scenario)
             env = torchrl_env.maniskill_env  # the gymnasium env underneath: its per-step info holds the outcome
             try:
                 scenario_episodes = []
@@ -386,5 +365,5 @@ def run(cfg: ClutterEvalConfig) -> dict:
     return summary
 
 
-__all__ = ["ClutterEvalConfig", "MAX_FAILURE_RUN", "METRICS", "SCENARIOS", "is_scenario", "load_policy", "plot_q_heatmaps", "run",
-           "run_episode", "scenario_options", "summarize", "write_tables"]
+__all__ = ["ClutterEvalConfig", "EpisodeTally", "MAX_FAILURE_RUN", "METRICS", "decide", "plot_q_heatmaps", "run", "run_episode", "summarize",
+           "write_tables"]

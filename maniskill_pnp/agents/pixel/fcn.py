@@ -44,6 +44,8 @@ import torch.nn.functional as F
 import torchvision
 from torch import nn
 
+from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+
 #: ImageNet statistics, used to normalise both trunks' inputs (as torchvision's pretrained weights expect).
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -316,17 +318,12 @@ class MultiPrimitiveQNetwork(nn.Module):
         Raises:
             ValueError: a non-integer action or an index outside ``0..P*R*H*W-1``.
         """
-        if action.dtype.is_floating_point or action.dtype == torch.bool:
-            raise ValueError(f"actions must be integer flat pixel indices, got dtype {action.dtype}")
         if heightmaps.ndim != 4 or heightmaps.shape[1] != 4:
             raise ValueError(f"heightmaps must be (N, 4, H, W), got {tuple(heightmaps.shape)}")
-        n, (H, W), R = heightmaps.shape[0], heightmaps.shape[-2:], self.num_rotations
-        a = action.reshape(n).long()
-        size = len(self.primitives) * R * H * W
-        if n and (int(a.min()) < 0 or int(a.max()) >= size):
-            raise ValueError(f"action index out of range 0..{size - 1}: got {int(a.min())}..{int(a.max())}")
-        primitive, rest = a // (R * H * W), a % (R * H * W)
-        rotation, pixel = rest // (H * W), rest % (H * W)
+        n, (H, W) = heightmaps.shape[0], heightmaps.shape[-2:]
+        layout = PixelActionLayout(len(self.primitives), self.num_rotations, H, W)
+        primitive, rotation, row, col = layout.decode(action.reshape(n))  # raises on a bad dtype or index
+        pixel = row * W + col
         values = heightmaps.new_zeros(n)
         for p, name in enumerate(self.primitives):
             rows = (primitive == p).nonzero().squeeze(1)

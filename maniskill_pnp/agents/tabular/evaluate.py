@@ -8,10 +8,10 @@
 * Learning curves: the training ``train/success_rate`` CSV logs, Q-learning vs SARSA and normal vs other reward
   schemes, as PNG.
 
-Metrics (DESIGN.md names): ``success_rate`` = objects placed in the bin / pick-and-place attempts; one episode is
-one object and one attempt, so it is the fraction of episodes that placed their object. ``grasp_success`` =
-successful grasps / grasp attempts (episodes that reached the grasp phase; a grasp counts when the "normal" reward
-scheme used here pays at least the grasp reward 0.5).
+Metrics (defined in ``docs/metrics.md``): ``success_rate`` = objects placed in the bin / pick-and-place attempts;
+one episode is one object and one attempt, so it is the fraction of episodes that placed their object.
+``grasp_success`` = successful grasps / grasp attempts (episodes that reached the grasp phase; a grasp counts when
+the task reports ``grasp_success`` for it).
 """
 
 from __future__ import annotations
@@ -29,15 +29,17 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm import tqdm
 
-from maniskill_pnp.agents.conveyor_recipe import ConveyorConfig, load_qtable, make_env, qtable_file
 from maniskill_pnp.agents.run_io import atomic_write_bytes
-from maniskill_pnp.agents.tabular import QTable, make_qtable_policy
-from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, SPEEDS, ConveyorSpec
+from maniskill_pnp.agents.tabular.qtable import QTable, make_qtable_policy
+from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, load_qtable, make_env, qtable_file
+from maniskill_pnp.tasks.conveyor import ConveyorProximityEnv
+from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, SPEEDS
 
 #: Test case -> the object kind that makes up at least 40% of it (thesis order: cuboid, sphere, cylinder).
 MAJORITY_KIND = {3: "cuboid", 4: "sphere", 5: "cylinder"}
 TEST_CASES = (1, 2, 3, 4, 5)
-GRASP_REWARD = 0.5  # "normal" scheme: 1 placed, 0.5 grasped but not placed, 0 failed
+#: ``info["primitive_index"]`` of the conveyor's grasp step.
+GRASP_PRIMITIVE = ConveyorProximityEnv.PRIMITIVES.index("grasp")
 
 
 @dataclass(frozen=True)
@@ -101,26 +103,25 @@ class GreedyRunner:
             env = make_env(cfg, reward_scheme="normal", object_kinds=(kind,), alignment=None, speed=None)
             env.set_seed(seed + OBJECT_KINDS.index(kind))
             self.envs[kind] = env
-        self.spec = ConveyorSpec()
         first = next(iter(self.envs.values()))
         self.policy, _, _ = make_qtable_policy(table, first.action_spec_unbatched, eps_init=0.0, eps_end=0.0, annealing_num_steps=1)
 
     @torch.no_grad()
     def episode(self, kind: str, alignment: str, speed: str) -> dict:
+        """One greedy episode; its outcome as the task reports it in the last step's outcome keys."""
         env = self.envs[kind]
         td = env.reset(options=dict(alignment=alignment, speed=speed))
-        grasp_attempt = False
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             for _ in PHASES:
-                grasp_attempt |= self.spec.decode_state(int(td.get("observation").reshape(-1)[0]))["phase"] == "grasp"
                 td = env.step(self.policy(td))
                 if bool(td.get(("next", "done")).any()):
                     break
                 td = step_mdp(td)
-        reward = float(td.get(("next", "reward")).reshape(-1)[0])
+        last = td.get("next")  # the episode's last step: a grasp attempt, or the step that ended it before one
         return dict(
-            kind=kind, alignment=alignment, speed=speed, placed=bool(td.get(("next", "success")).any()),
-            grasp_attempt=grasp_attempt, grasped=grasp_attempt and reward >= GRASP_REWARD, reward=reward,
+            kind=kind, alignment=alignment, speed=speed, placed=bool(last.get("success").any()),
+            grasp_attempt=bool((last.get("primitive_index") == GRASP_PRIMITIVE).any()),
+            grasped=bool(last.get("grasp_success").any()), reward=float(last.get("reward").reshape(-1)[0]),
         )
 
     def close(self):

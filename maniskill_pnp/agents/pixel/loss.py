@@ -1,8 +1,8 @@
 """Losses of the pixelwise agents: a DQN loss on the executed pixel and the binary-classification baseline.
 
 Both losses take a Q network mapping heightmaps ``(B, 4, H, W)`` to maps ``(B, *action_shape)`` (a
-:class:`~maniskill_pnp.agents.pixel_fcn.PixelQNetwork` gives ``(R, H, W)``, a
-:class:`~maniskill_pnp.agents.pixel_fcn.MultiPrimitiveQNetwork` ``(P, R, H, W)``); the action is the row-major flat
+:class:`~maniskill_pnp.agents.pixel.fcn.PixelQNetwork` gives ``(R, H, W)``, a
+:class:`~maniskill_pnp.agents.pixel.fcn.MultiPrimitiveQNetwork` ``(P, R, H, W)``); the action is the row-major flat
 index of those maps, i.e. :class:`~maniskill_pnp.tasks.pixel_action.PixelActionLayout`'s index.
 
 Only the executed pixel enters the loss, so every other pixel of the maps gets exactly zero gradient (thesis).
@@ -98,7 +98,7 @@ class _PixelLoss(LossModule):
 
     def _executed(self, observation: torch.Tensor, action: torch.Tensor, n: int) -> torch.Tensor:
         """Online ``Q(s, a)`` ``(n,)``; only the executed maps are computed when the network offers
-        ``executed_values`` (e.g. :class:`~maniskill_pnp.agents.pixel_fcn.MultiPrimitiveQNetwork`)."""
+        ``executed_values`` (e.g. :class:`~maniskill_pnp.agents.pixel.fcn.MultiPrimitiveQNetwork`)."""
         if self.executed_only and hasattr(self.value_network, "executed_values"):
             with self.value_network_params.to_module(self.value_network):
                 return self.value_network.executed_values(observation, action.reshape(n))

@@ -1,17 +1,19 @@
 """Recipe: tabular Q-learning or SARSA on ``ConveyorProximity-v1`` (thesis chapter 4), on TorchRL.
 
 One agent step is a whole phase of one pick (wait and sense → pre-pick coordinate → grasp coordinate), so an
-episode is one object and at most three frames. The state id, the valid actions per phase and the coordinate sets
-come from the task's public :class:`~maniskill_pnp.tasks.conveyor_config.ConveyorSpec`.
+episode is one object and at most three frames. The state id and the coordinate sets come from the task's public
+:class:`~maniskill_pnp.tasks.conveyor_config.ConveyorSpec`; the actions valid in the current phase come from the
+task itself, as the env's ``"action_mask"`` entry.
 
 Run it with ``python -m maniskill_pnp.cli train-conveyor --algorithm sarsa --seed 1``; a run folder
 ``<out>/<algorithm>_<reward_scheme>_seed<seed>/`` receives ``config.json``, ``qtable.pt`` and the CSV logs
 (``scalars/train/success_rate.csv`` ..., read back by the evaluation's learning curves), or with
 ``logger="tensorboard"`` a TensorBoard event file instead.
 
-Metric: ``success_rate`` (DESIGN.md: objects placed in the bin / pick-and-place attempts). On the conveyor every
-episode is one object and one pick-and-place attempt, so it is the fraction of episodes whose object ended in the
-bin; during training it is the running mean over the last ``success_window`` episodes of the ε-greedy behaviour.
+Metric: ``success_rate`` (objects placed in the bin / pick-and-place attempts; see ``docs/metrics.md``). On the
+conveyor every episode is one object and one pick-and-place attempt, so it is the fraction of episodes whose object
+ended in the bin; during training it is the running mean over the last ``success_window`` episodes of the ε-greedy
+behaviour.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from pathlib import Path
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.envs import Compose, TransformedEnv
+from torchrl.envs import TransformedEnv
 from torchrl.envs.transforms import ActionMask
 from tqdm import tqdm
 
@@ -32,7 +34,7 @@ from maniskill_pnp.agents.collection import check_collection, make_collector, re
 from maniskill_pnp.agents.run_io import (
     RunConfig, atomic_write_bytes, check_logger, make_logger, require_logger, require_positive, write_json,
 )
-from maniskill_pnp.agents.tabular import ALGORITHMS, QTable, StateActionMask, bootstrap_for, make_qtable_policy, td_update
+from maniskill_pnp.agents.tabular.qtable import ALGORITHMS, QTable, bootstrap_for, make_qtable_policy, td_update
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, REWARD_SCHEMES, SPEEDS, ConveyorSpec
 
 ENV_ID = "ConveyorProximity-v1"
@@ -126,28 +128,19 @@ class ConveyorConfig(RunConfig):
 
 
 # ----------------------------------------------------------------------------- factories
-def valid_action_table(spec: ConveyorSpec) -> torch.Tensor:
-    """``[num_states, action_n]`` bool: the actions valid in each state id's phase (from the public spec).
-
-    The terminal phase ("done") has no valid action, but its row lets action 0 through: TorchRL's masked
-    ``Categorical.rand`` fails on an empty mask, and ``ActionMask`` puts the mask of the last (terminal) observation
-    on the action spec until the next reset (``check_env_specs`` samples right there). No action is ever taken in a
-    terminal state, and terminal transitions bootstrap 0 whatever their next mask says.
-    """
-    valid = torch.zeros(spec.num_states, spec.action_n, dtype=torch.bool)
-    for s in range(spec.num_states):
-        valid[s, : max(1, spec.num_actions[spec.decode_state(s)["phase"]])] = True
-    return valid
-
-
 def make_worker_env(cfg: ConveyorConfig, seed: int) -> TransformedEnv:
     """The env of one collector worker: the config's task with its episodes and planner seeded by ``seed``."""
     return make_env(replace(cfg, seed=seed))
 
 
 def make_env(cfg: ConveyorConfig, *, reward_scheme: str | None = None, **task_options) -> TransformedEnv:
-    """The conveyor task as a TorchRL env with ``"action_mask"`` and a phase-masked action spec.
+    """The conveyor task as a TorchRL env whose action spec follows the task's own action mask.
 
+    Next to the state id the env carries ``"action_mask"`` (bool ``[1, action_n]``: the actions valid in the task's
+    current phase, as the task reports them in its info; all False once the episode is over), ``"success"`` and the
+    task's outcome flags (``"grasp_success"``, ``"place_success"`` ...). TorchRL's
+    :class:`~torchrl.envs.transforms.ActionMask` puts the mask on the action spec, so random actions
+    (``env.rand_action``, ``check_env_specs``) respect the phases; the Q-table policies read the same entry.
     ``task_options`` override the config's ``object_kinds`` / ``alignment`` / ``speed``.
     """
     from maniskill_pnp.torchrl_env import make_torchrl_env
@@ -166,11 +159,9 @@ def make_env(cfg: ConveyorConfig, *, reward_scheme: str | None = None, **task_op
         planner_seed=cfg.seed,
         **options,
     )
-    env = TransformedEnv(base, Compose(StateActionMask(valid_action_table(ConveyorSpec())), ActionMask()))
+    env = TransformedEnv(base, ActionMask())
     env.set_seed(cfg.seed)
     return env
-
-
 
 
 def save_qtable(table: QTable, cfg: ConveyorConfig, path: Path, *, spec: ConveyorSpec, extra: dict | None = None) -> None:
@@ -265,6 +256,43 @@ class NextActionPairing:
             raise RuntimeError("the frame after a non-terminal transition does not start at its next state")
 
 
+# ----------------------------------------------------------------------------- collection and episode tally
+def make_training_collector(cfg: ConveyorConfig, policy, env: TransformedEnv):
+    """The collector of a training run (a few frames per worker per batch, exploration on) and its description for
+    ``train_summary.json``. With the direct backend it steps ``env``; otherwise ``env`` only gave the specs and is
+    closed here, and every worker builds its own."""
+    backend = resolve_backend(cfg.collector, cfg.workers)
+    collection = dict(backend=backend, workers=cfg.workers, sync=cfg.sync, worker_seeds=worker_seeds(cfg.seed, cfg.workers))
+    if backend != "direct":
+        env.close()
+    collector = make_collector(
+        partial(make_worker_env, cfg), policy, seed=cfg.seed, total_frames=cfg.steps, frames_per_worker=cfg.frames_per_batch,
+        workers=cfg.workers, backend=backend, sync=cfg.sync, env=env if backend == "direct" else None,
+    )
+    return collector, collection
+
+
+class EpisodeTally:
+    """Frames, episodes and placed objects so far, and the running ``success_rate`` over the last ``window``
+    episodes (one episode is one object and one pick-and-place attempt)."""
+
+    def __init__(self, window: int):
+        self.frames = self.episodes = self.placed = 0
+        self.recent: deque[bool] = deque(maxlen=window)
+
+    def add(self, batch: TensorDictBase) -> None:
+        """Count a flat batch of transitions: its frames, and the episodes that ended in it (placed or not)."""
+        self.frames += batch.numel()
+        ends = batch.get(("next", "done")).reshape(-1)
+        for ok in batch.get(("next", "success")).reshape(-1)[ends].tolist():
+            self.recent.append(bool(ok))
+            self.episodes, self.placed = self.episodes + 1, self.placed + bool(ok)
+
+    @property
+    def success_rate(self) -> float:
+        return sum(self.recent) / len(self.recent) if self.recent else 0.0
+
+
 # ----------------------------------------------------------------------------- main
 def main(cfg: ConveyorConfig) -> dict:
     """Train one tabular agent; returns a summary (run folder, files, final running success rate, wall time)."""
@@ -275,72 +303,51 @@ def main(cfg: ConveyorConfig) -> dict:
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json(run_dir / "config.json", cfg.to_json())
 
-    # 1. make the env (TorchRL, with the phase action mask)
+    # The env (its "action_mask" entry: the task's valid actions), the Q-table with its greedy and ε-greedy
+    # policies, the TD update (Q-learning and SARSA differ only in the bootstrap term), the collector, the logger.
     env = make_env(cfg)
-
-    # 2. make the Q-table, the greedy policy and its ε-greedy exploration
     table = QTable(spec.num_states, spec.action_n, init=cfg.q_init)
     _, explore, egreedy = make_qtable_policy(
         table, env.action_spec_unbatched, eps_init=cfg.eps_start, eps_end=cfg.eps_end, annealing_num_steps=cfg.eps_decay_steps
     )
-
-    # 3. make the TD update: Q-learning and SARSA differ only in the bootstrap term
     bootstrap = bootstrap_for(cfg.algorithm)
     pairing = NextActionPairing(explore)
-
-    # 4. make the collector (a few frames per worker per batch, exploration on); with several workers the env
-    #    above only gave the specs, and each worker builds its own
-    backend = resolve_backend(cfg.collector, cfg.workers)
-    collection = dict(backend=backend, workers=cfg.workers, sync=cfg.sync, worker_seeds=worker_seeds(cfg.seed, cfg.workers))
-    if backend != "direct":
-        env.close()
-        env = None
-    collector = make_collector(
-        partial(make_worker_env, cfg), explore, seed=cfg.seed, total_frames=cfg.steps,
-        frames_per_worker=cfg.frames_per_batch, workers=cfg.workers, backend=backend, sync=cfg.sync, env=env,
-    )
-
-    # 5. make the logger (CSV files or TensorBoard events in the run folder)
+    collector, collection = make_training_collector(cfg, explore, env)
     logger = make_logger(run_dir, cfg.logger)
 
-    # 6. main loop: collect, pair with a', TD-update, anneal ε, log
-    outcomes: deque[bool] = deque(maxlen=cfg.success_window)
-    episodes = placed = frames = 0
+    tally = EpisodeTally(cfg.success_window)
     next_log = cfg.log_interval
     t0 = time.perf_counter()
     bar = tqdm(total=cfg.steps, desc=f"{cfg.algorithm} {cfg.reward_scheme}", unit="step")
     for batch in collector:
+        # collect: a few frames of every worker, as one flat batch of transitions
         batch = batch.reshape(-1)
+        # update: pair each transition with a', TD-update the table in order, anneal ε, send both to the workers
         ready = pairing(batch)
         if ready is not None:
             td_update(table, ready, alpha=cfg.alpha, gamma=cfg.gamma, bootstrap=bootstrap)
         egreedy.step(batch.numel())
-        sync_weights(collector)  # the workers act with the updated table and ε
-        frames += batch.numel()
-        ends = batch.get(("next", "done")).reshape(-1)
-        for ok in batch.get(("next", "success")).reshape(-1)[ends].tolist():
-            outcomes.append(bool(ok))
-            episodes, placed = episodes + 1, placed + bool(ok)
-        running = sum(outcomes) / len(outcomes) if outcomes else 0.0
+        sync_weights(collector)
+        # log: the running success rate of the episodes that ended
+        tally.add(batch)
         bar.update(batch.numel())
-        bar.set_postfix(success=f"{running:.2f}", eps=f"{egreedy.eps.item():.2f}", episodes=episodes)
-        if frames >= next_log or frames >= cfg.steps:
-            logger.log_scalar("train/success_rate", running, step=frames)
-            logger.log_scalar("train/episodes", episodes, step=frames)
-            logger.log_scalar("train/epsilon", egreedy.eps.item(), step=frames)
-            logger.log_scalar("time/wall_s", time.perf_counter() - t0, step=frames)
-            next_log = frames + cfg.log_interval
+        bar.set_postfix(success=f"{tally.success_rate:.2f}", eps=f"{egreedy.eps.item():.2f}", episodes=tally.episodes)
+        if tally.frames >= next_log or tally.frames >= cfg.steps:
+            logger.log_scalar("train/success_rate", tally.success_rate, step=tally.frames)
+            logger.log_scalar("train/episodes", tally.episodes, step=tally.frames)
+            logger.log_scalar("train/epsilon", egreedy.eps.item(), step=tally.frames)
+            logger.log_scalar("time/wall_s", time.perf_counter() - t0, step=tally.frames)
+            next_log = tally.frames + cfg.log_interval
     bar.close()
     logger.close()  # flushes TensorBoard's buffered events into the file
     collector.shutdown()
-    if env is not None:
+    if collection["backend"] == "direct":
         env.close()
-    wall = time.perf_counter() - t0
 
-    # 7. save the Q-table (atomically, with its config and shapes)
+    # checkpoint: the Q-table (atomically, with its config and shapes) and the run's summary
     summary = dict(
-        run_dir=str(run_dir), steps=frames, episodes=episodes, placed=placed,
-        final_running_success_rate=running, wall_s=wall, collection=collection,
+        run_dir=str(run_dir), steps=tally.frames, episodes=tally.episodes, placed=tally.placed,
+        final_running_success_rate=tally.success_rate, wall_s=time.perf_counter() - t0, collection=collection,
     )
     save_qtable(table, cfg, run_dir / "qtable.pt", spec=spec, extra=dict(train=summary))
     write_json(run_dir / "train_summary.json", summary)
@@ -348,6 +355,6 @@ def main(cfg: ConveyorConfig) -> dict:
 
 
 __all__ = [
-    "ConveyorConfig", "NextActionPairing", "load_qtable", "qtable_file", "main", "make_env", "make_worker_env", "save_qtable",
-    "valid_action_table",
+    "ConveyorConfig", "EpisodeTally", "NextActionPairing", "load_qtable", "main", "make_env", "make_training_collector",
+    "make_worker_env", "qtable_file", "save_qtable",
 ]

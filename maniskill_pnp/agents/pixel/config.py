@@ -1,0 +1,229 @@
+"""The config of a pixelwise DQN run (:class:`ClutterConfig`) and its presets.
+
+A run is described by one frozen dataclass, saved as ``config.json`` in its run folder. Presets are data: the file
+``presets.yaml`` beside this module lists, per preset, the fields that differ from the dataclass defaults (which are
+the ``cpu-small`` preset). :meth:`ClutterConfig.from_preset` applies one, then any overrides.
+
+Example:
+    >>> cfg = ClutterConfig.from_preset("gs-cpu-small", seed=2)
+    >>> cfg.primitives, cfg.env_id
+    (('grasp', 'left_slide', 'right_slide'), 'ClutterGraspSlide-v1')
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+
+from maniskill_pnp.agents.collection import check_collection
+from maniskill_pnp.agents.pixel.fcn import BACKBONES
+from maniskill_pnp.agents.pixel.policy import PrimitiveExploreMask
+from maniskill_pnp.agents.run_io import LOGGERS, RunConfig, require_positive
+from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv
+from maniskill_pnp.tasks.clutter_grasp_slide import REWARD_SCHEMES, ClutterGraspSlideEnv
+
+#: The tasks a run trains on: its env id and task class (whose ``PRIMITIVES`` are the action's primitives, one FCN
+#: each).
+TASKS = {
+    "grasp": ("ClutterGrasp-v1", ClutterGraspEnv),
+    "grasp_slide": ("ClutterGraspSlide-v1", ClutterGraspSlideEnv),
+}
+LOSSES = ("dqn", "bce")
+OPTIMIZERS = ("sgd", "adam")
+#: The valid values of the config's choice fields (checked by the config, offered as choices by the command line).
+CHOICES = dict(task=tuple(TASKS), loss=LOSSES, optimizer=OPTIMIZERS, backbone=tuple(sorted(BACKBONES)),
+               reward_scheme=tuple(REWARD_SCHEMES), logger=LOGGERS)
+#: Fields that fix the network's shape or the task: a resumed run must keep them.
+ARCHITECTURE_FIELDS = (
+    "task", "loss", "backbone", "use_depth", "head_channels", "num_rotations", "heightmap_size", "workspace_side",
+)
+#: The presets file: preset name -> the fields it sets.
+PRESETS_FILE = Path(__file__).with_name("presets.yaml")
+
+
+@dataclass(frozen=True)
+class ClutterConfig(RunConfig):
+    """Everything a clutter-grasping DQN run depends on; saved as ``config.json`` in the run folder.
+
+    The defaults are the ``cpu-small`` preset; :func:`presets` holds the overrides of each preset.
+    """
+
+    preset: str = "cpu-small"
+    """Name of the preset these values started from (part of the run name)."""
+    task: str = "grasp"
+    """"grasp": one grasp FCN on ClutterGrasp-v1; "grasp_slide": the G&S agent (3 FCNs) on ClutterGraspSlide-v1."""
+    loss: str = "dqn"
+    """"dqn": Huber loss to r + gamma max Q(s'); "bce": the binary-classification baseline (no bootstrapping, so it
+    turns delay_value and double_dqn off)."""
+    reward_scheme: str = "default"
+    """Reward scheme of ClutterGraspSlide-v1 ("default" or "no_slide_reward"); must be "default" for task grasp."""
+    backbone: str = "small"
+    """Feature trunk of the Q network: "densenet121" (thesis), "resnet101" or "small" (ResNet-18 to layer2)."""
+    pretrained_path: str | None = None
+    """Local state_dict of the full torchvision classifier of the backbone (never downloaded); None: random init."""
+    use_depth: bool = True
+    """Keep the depth trunk beside the colour trunk (False: the thesis' colour-only ablation)."""
+    head_channels: int = 64
+    """Width of the hidden 1x1 convolution of the Q head."""
+    num_rotations: int = 4
+    """Grasp yaws evenly spaced over 360 degrees (the thesis uses 16)."""
+    heightmap_size: int = 64
+    """Heightmap pixels per side; the pixel size is ``workspace_side / heightmap_size``."""
+    workspace_side: float = 0.448
+    """Side (m) of the square workspace the heightmap covers (the thesis: 224 px of 2 mm)."""
+    num_objects: int = 10
+    """Objects dropped into the workspace each episode."""
+    steps: int = 300
+    """Grasp attempts (env steps) to train for, counted over resumes."""
+    episodes: int = 0
+    """Stop after this many finished episodes as well (0: no episode limit)."""
+    max_minutes: float = 0.0
+    """Stop, with a checkpoint, after this many minutes of this invocation's training loop as well (0: no time
+    limit; a resumed run starts its clock again)."""
+    gamma: float = 0.5
+    """Discount of the DQN target ``r + gamma * max Q'(s')``."""
+    delay_value: bool = True
+    """Bootstrap from a target network synced by HardUpdate every ``target_update_interval`` updates."""
+    target_update_interval: int = 100
+    """SGD updates between two hard target-network syncs (used with ``delay_value``)."""
+    double_dqn: bool = False
+    """Double DQN bootstrap (needs ``delay_value``)."""
+    optimizer: str = "sgd"
+    """"sgd" (thesis: momentum, weight decay) or "adam" (momentum is unused)."""
+    lr: float = 1e-2
+    """SGD learning rate."""
+    momentum: float = 0.9
+    """SGD momentum."""
+    weight_decay: float = 1e-3
+    """SGD weight decay (L2)."""
+    batch_size: int = 4
+    """Transitions per sampled replay batch."""
+    updates_per_step: int = 1
+    """SGD steps (each on a fresh prioritized batch) after every env step."""
+    mask_empty: bool = True
+    """Act, explore and bootstrap only over grasps where the heightmap shows material (see maniskill_pnp.agents.pixel.mask)."""
+    mask_min_height: float = 0.01
+    """Height (m) above the table from which a pixel counts as material for ``mask_empty``."""
+    learning_starts: int = 1
+    """Transitions in the replay before the first SGD step."""
+    replay_capacity: int = 2000
+    """Transitions the prioritized replay keeps (oldest overwritten first)."""
+    replay_alpha: float = 0.6
+    """Priority exponent of the replay (0: uniform)."""
+    replay_beta: float = 0.4
+    """Importance-sampling exponent of the replay's priority weights."""
+    save_replay: bool = True
+    """Save the replay contents with every checkpoint, so a resumed run continues from them."""
+    eps_start: float = 0.3
+    """ε of the ε-greedy behaviour at step 0."""
+    eps_end: float = 0.1
+    """ε after ``eps_decay_steps`` steps (linear decay, then constant)."""
+    eps_decay_steps: int = 200
+    """Steps over which ε decays linearly from ``eps_start`` to ``eps_end``."""
+    explore_weights: tuple[float, ...] = ()
+    """Share of each primitive (grasp, left-slide, right-slide) among the ε-random actions, e.g. 2 1 1; empty: a
+    uniform draw over the allowed actions, which in clutter makes about 4 in 5 of them slides."""
+    seed: int = 0
+    """Seed of the network initialisation, the episodes, the planner and the exploration."""
+    workers: int = 1
+    """Env workers collecting in parallel (processes, or Ray actors); each has its own seed, recorded in
+    train_summary.json."""
+    collector: str = "auto"
+    """Collector backend: "auto" (direct for one worker, process for more), "direct", "process" or "ray" (needs the
+    ray extra, ``pip install maniskill_pnp[ray]``; joins the cluster named by RAY_ADDRESS)."""
+    sync: bool = True
+    """A multi-worker batch waits for every worker (False: each worker's frames as soon as they are ready)."""
+    checkpoint_interval: int = 50
+    """Write the checkpoint atomically every this many steps (and at the end)."""
+    log_interval: int = 10
+    """Log the training metrics every this many steps."""
+    success_window: int = 50
+    """Grasp attempts in the running grasp success shown on the progress bar and logged."""
+    logger: str = "csv"
+    """Where the training metrics go: "csv" (CSV files in the run folder, read back by the evaluation/plot commands)
+    or "tensorboard" (TorchRL's TensorboardLogger; needs the tensorboard extra,
+    ``pip install maniskill_pnp[tensorboard]``). The per-action ``actions.csv`` is written either way."""
+    resume: bool = False
+    """Continue from the run folder's checkpoint.pt (its architecture fields must match this config)."""
+    out: Path = Path("runs/clutter")
+    """Parent folder of the run folder ``<preset>_<backbone>_r<rotations>_px<size>_seed<seed>``."""
+
+    def __post_init__(self):
+        object.__setattr__(self, "out", Path(self.out))
+        if self.preset not in presets():
+            raise ValueError(f"unknown preset {self.preset!r}; valid: {list(presets())}")
+        for name, valid in CHOICES.items():
+            if getattr(self, name) not in valid:
+                raise ValueError(f"unknown {name.replace('_', ' ')} {getattr(self, name)!r}; valid: {list(valid)}")
+        check_collection(self.workers, self.collector, self.sync)
+        if self.task == "grasp" and self.reward_scheme != "default":
+            raise ValueError(f"reward_scheme {self.reward_scheme!r} needs task 'grasp_slide' (ClutterGrasp-v1 has one scheme)")
+        if self.loss == "bce" and (self.double_dqn or self.delay_value):
+            object.__setattr__(self, "delay_value", False)  # no bootstrap, so no target network
+            object.__setattr__(self, "double_dqn", False)
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
+        if self.double_dqn and not self.delay_value:
+            raise ValueError("double_dqn needs delay_value (a target network)")
+        if not 0.0 <= self.eps_end <= self.eps_start <= 1.0:
+            raise ValueError(f"need 0 <= eps_end <= eps_start <= 1, got {self.eps_start} -> {self.eps_end}")
+        if not self.workspace_side > 0 or not self.lr > 0:
+            raise ValueError(f"workspace_side and lr must be > 0, got {self.workspace_side}, {self.lr}")
+        positive = ("head_channels", "num_rotations", "heightmap_size", "num_objects", "steps", "target_update_interval",
+                    "batch_size", "updates_per_step", "learning_starts", "replay_capacity", "eps_decay_steps", "checkpoint_interval",
+                    "log_interval", "success_window")
+        require_positive(self, positive)
+        object.__setattr__(self, "explore_weights", tuple(float(w) for w in self.explore_weights))
+        if self.explore_weights and len(self.explore_weights) != len(self.primitives):
+            raise ValueError(f"explore_weights needs one weight per primitive {self.primitives}, got {self.explore_weights}")
+        if self.explore_weights:
+            PrimitiveExploreMask(self.explore_weights)  # raises on negative, non-finite or all-zero weights
+        if self.episodes < 0 or not self.max_minutes >= 0:
+            raise ValueError(f"episodes and max_minutes must be >= 0, got {self.episodes}, {self.max_minutes}")
+
+    @classmethod
+    def from_preset(cls, name: str, **overrides) -> ClutterConfig:
+        """The preset ``name`` (see :func:`presets`) with ``overrides`` applied."""
+        all_presets = presets()
+        if name not in all_presets:
+            raise ValueError(f"unknown preset {name!r}; valid: {list(all_presets)}")
+        return cls(**{**all_presets[name], **overrides, "preset": name})
+
+    @property
+    def run_name(self) -> str:
+        return f"{self.preset}_{self.backbone}_r{self.num_rotations}_px{self.heightmap_size}_seed{self.seed}"
+
+    @property
+    def env_id(self) -> str:
+        """The task's env id (``ClutterGrasp-v1`` or ``ClutterGraspSlide-v1``)."""
+        return TASKS[self.task][0]
+
+    @property
+    def primitives(self) -> tuple[str, ...]:
+        """The task's primitive names, in the order of the action's primitive index."""
+        return tuple(TASKS[self.task][1].PRIMITIVES)
+
+
+@functools.cache
+def _read_presets() -> dict[str, dict]:
+    import yaml
+
+    presets = yaml.safe_load(PRESETS_FILE.read_text())
+    if not isinstance(presets, dict):
+        raise ValueError(f"{PRESETS_FILE} must map preset names to their fields")
+    for name, values in presets.items():
+        try:
+            ClutterConfig._check_values(values or {})
+        except ValueError as e:
+            raise ValueError(f"{PRESETS_FILE}, preset {name!r}: {e}") from e
+    return {name: dict(values or {}) for name, values in presets.items()}
+
+
+def presets() -> dict[str, dict]:
+    """Every preset: its name -> the fields it sets (a fresh copy of what ``presets.yaml`` holds, checked against the
+    fields' names and types)."""
+    return {name: dict(values) for name, values in _read_presets().items()}
+
+
+__all__ = ["ARCHITECTURE_FIELDS", "CHOICES", "ClutterConfig", "LOSSES", "OPTIMIZERS", "PRESETS_FILE", "TASKS", "presets"]

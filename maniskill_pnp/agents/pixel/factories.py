@@ -1,0 +1,132 @@
+"""Everything a pixelwise DQN agent is built from, built from its :class:`~maniskill_pnp.agents.pixel.config.ClutterConfig`
+in one place: training, evaluation, video and the benchmarks all call these, so they cannot drift apart.
+
+* :func:`make_workspace`: the heightmap grid (size, pixel size, rotations);
+* :func:`make_env` / :func:`make_worker_env`: the task as a TorchRL env, for a scenario (:data:`SCENARIOS`);
+* :func:`make_model`: one pixel Q network per primitive;
+* :func:`make_action_mask`: the actions that can touch something (see :mod:`~maniskill_pnp.agents.pixel.mask`);
+* :func:`make_policy`: the greedy and the ε-greedy actor over the network and the mask;
+* :func:`load_policy`: the greedy actor of a saved checkpoint, rebuilt from the checkpoint's own config.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import torch
+
+from maniskill_pnp.agents.pixel.checkpoint import load_checkpoint
+from maniskill_pnp.agents.pixel.config import ClutterConfig
+from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork
+from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
+from maniskill_pnp.agents.pixel.policy import GreedyPixelActor, make_pixel_policy
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+#: Scenes an agent can be run on besides a positive object count: ``"train"`` (the config's object count), a
+#: density preset of the task (``"min"``, ``"medium"``, ``"max"``) or ``"complicated"`` (ClutterGraspSlide-v1's
+#: hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset).
+SCENARIOS = ("train", "min", "medium", "max", "complicated")
+
+
+def is_scenario(name: str) -> bool:
+    """Whether ``name`` is a scenario: one of :data:`SCENARIOS` or a positive object count."""
+    return name in SCENARIOS or (name.isdigit() and int(name) > 0)
+
+
+def scenario_options(name: str, task: str) -> dict:
+    """Task keyword arguments of a scenario (see :data:`SCENARIOS`)."""
+    if name == "train":
+        return {}
+    if name.isdigit():
+        return dict(num_objects=int(name))
+    if name == "complicated" and task == "grasp_slide":
+        return dict(layout="complicated")
+    return dict(num_objects=name)
+
+
+def make_workspace(cfg: ClutterConfig) -> WorkspaceSpec:
+    """The workspace of the config: its heightmap size, pixel size and rotations (the rest at the task defaults)."""
+    return WorkspaceSpec(
+        heightmap_size=cfg.heightmap_size, pixel_size=cfg.workspace_side / cfg.heightmap_size, num_rotations=cfg.num_rotations
+    )
+
+
+def make_env(cfg: ClutterConfig, scenario: str = "train", **task_kwargs):
+    """The config's task as a TorchRL env, with its heightmap size, rotations and object count, on the CPU, set up
+    for ``scenario`` (see :data:`SCENARIOS`). ``task_kwargs`` override or add task and ManiSkill options, e.g.
+    ``render_mode="rgb_array"`` or ``num_envs=16, sim_backend="physx_cuda", render_backend="sapien_cuda"``."""
+    from maniskill_pnp.torchrl_env import make_torchrl_env
+
+    options = dict(num_objects=cfg.num_objects, workspace=make_workspace(cfg), planner_seed=cfg.seed,
+                   sim_backend="physx_cpu", render_backend="cpu")
+    if cfg.task == "grasp_slide":
+        options["reward_scheme"] = cfg.reward_scheme
+    options.update(scenario_options(scenario, cfg.task), **task_kwargs)
+    return make_torchrl_env(cfg.env_id, **options)
+
+
+def make_worker_env(cfg: ClutterConfig, seed: int):
+    """The env of one collector worker: the config's task with its planner seeded by ``seed`` (picklable with
+    ``functools.partial``)."""
+    return make_env(dataclasses.replace(cfg, seed=seed))
+
+
+def make_model(cfg: ClutterConfig) -> MultiPrimitiveQNetwork:
+    """One pixel Q network per primitive of the task: ``(N, 4, H, W) -> (N, P, R, H, W)``."""
+    return MultiPrimitiveQNetwork(
+        cfg.primitives, num_rotations=cfg.num_rotations, backbone=cfg.backbone, use_depth=cfg.use_depth,
+        head_channels=cfg.head_channels, pretrained_path=cfg.pretrained_path,
+    )
+
+
+def make_action_mask(cfg: ClutterConfig, enabled: tuple[str, ...] | None = None) -> HeightmapActionMask | None:
+    """The action mask of the config: with ``mask_empty``, grasps on material and slides from bare table towards
+    material within half a slide; only the ``enabled`` primitives (e.g. ``("grasp",)`` for a G&S agent restricted to
+    grasps); None when neither applies."""
+    if not cfg.mask_empty and enabled is None:
+        return None
+    return HeightmapActionMask.for_workspace(
+        cfg.primitives, make_workspace(cfg), min_height=cfg.mask_min_height if cfg.mask_empty else None, enabled=enabled
+    )
+
+
+def make_policy(cfg: ClutterConfig, model: MultiPrimitiveQNetwork, action_spec, eps: float | None = None):
+    """``(greedy, explore, egreedy)`` of :func:`~maniskill_pnp.agents.pixel.policy.make_pixel_policy` over ``model``,
+    under the config's action mask and explore weights; ε follows the config's schedule, or stays at ``eps``."""
+    schedule = (dict(eps_init=cfg.eps_start, eps_end=cfg.eps_end, annealing_num_steps=cfg.eps_decay_steps) if eps is None
+                else dict(eps_init=eps, eps_end=eps, annealing_num_steps=1))
+    return make_pixel_policy(model, action_spec, action_mask=make_action_mask(cfg),
+                             explore_weights=cfg.explore_weights or None, **schedule)
+
+
+def load_policy(path: Path, device: torch.device, grasp_only: bool = False) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
+    """The greedy actor of a checkpoint (network in eval mode on ``device``, the training's action mask, and with
+    ``grasp_only`` only the grasp primitive enabled), its training config and counters.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        ValueError: ``path`` is not a readable clutter DQN checkpoint, or its weights do not fit its config.
+    """
+    payload = load_checkpoint(path)
+    try:
+        train_cfg = ClutterConfig.from_json(payload["config"])
+        state = payload["model"]
+    except (KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"checkpoint {path} has no usable config or model: {e}") from e
+    # The checkpoint's weights replace any initialisation: do not read a pretrained file that may be gone by now.
+    train_cfg = dataclasses.replace(train_cfg, pretrained_path=None)
+    model = make_model(train_cfg)
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as e:
+        raise ValueError(f"checkpoint {path}: the weights do not fit the network of its config: {e}") from e
+    model.to(device).eval()
+    mask = make_action_mask(train_cfg, enabled=("grasp",) if grasp_only else None)
+    return GreedyPixelActor(model, mask), train_cfg, dict(payload.get("counters", {}))
+
+
+__all__ = [
+    "SCENARIOS", "is_scenario", "load_policy", "make_action_mask", "make_env", "make_model", "make_policy",
+    "make_worker_env", "make_workspace", "scenario_options",
+]

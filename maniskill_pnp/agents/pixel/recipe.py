@@ -1,0 +1,247 @@
+"""Recipe: pixelwise DQN agents on the clutter tasks (thesis parts II and III), on TorchRL.
+
+``task="grasp"`` trains one grasp FCN on ``ClutterGrasp-v1``; ``task="grasp_slide"`` trains the G&S agent, three
+FCNs (grasp, left slide, right slide) on ``ClutterGraspSlide-v1``, acting by the maximum over all their maps.
+One agent step is one whole primitive: the ε-greedy actor picks the argmax flat index over (primitive, rotation,
+row, col) of the Q maps of the current heightmaps; the env executes it. After every step the transition goes into
+a prioritized replay, ``updates_per_step`` batches are sampled, each followed by one SGD step on the pixelwise loss
+(only the executed pixel is trained: the DQN loss, or with ``loss="bce"`` the thesis' binary-classification
+baseline) and a refresh of the sampled priorities.
+
+Run it with ``maniskill-pnp train-clutter --preset cpu-small --seed 1`` (``--preset gs-cpu-small`` for G&S); a run folder
+``<out>/<run_name>/`` receives ``config.json``, ``checkpoint.pt`` (written atomically every ``checkpoint_interval``
+steps and at the end), ``train_summary.json``, ``actions.csv`` (one row per action, see
+:data:`~maniskill_pnp.agents.pixel.metrics.ACTION_COLUMNS`) and the CSV logs (``scalars/train/grasp_success.csv``
+...; with ``logger="tensorboard"`` a TensorBoard event file instead).
+``--resume`` continues from the run folder's checkpoint (model, optimizer, target network, ε, step and episode
+counters, RNG states) and, with ``save_replay`` (the default), from the replay buffer saved beside it
+(``replay_step<N>/``: TorchRL's ``ReplayBuffer.dumps`` of the storage, priorities and writer; about 40 kB per
+transition at 64 px, 0.5 MB at 224 px). The checkpoint names the replay folder of its own step, written before
+it, so a crash between the two leaves the previous pair intact.
+
+With ``mask_empty`` (the default) the actor and the bootstrap range over the actions that can touch something:
+grasps where the heightmap shows material, slides that start on bare table and meet material within half their
+length (:class:`~maniskill_pnp.agents.pixel.mask.HeightmapActionMask`).
+
+Metrics of the ε-greedy behaviour (``docs/metrics.md``), logged as running values over the last ``success_window``
+actions: ``grasp_success`` (grasp attempts that lifted an object / grasp attempts) and ``success_rate`` (objects
+placed in the bin / actions); per finished episode also ``episode/success_rate`` and ``episode/completion``
+(:mod:`~maniskill_pnp.agents.pixel.metrics`).
+
+The pieces live beside this module: the config and presets (:mod:`~maniskill_pnp.agents.pixel.config`), the env,
+network, mask and actors (:mod:`~maniskill_pnp.agents.pixel.factories`), checkpoints
+(:mod:`~maniskill_pnp.agents.pixel.checkpoint`) and the metrics; :func:`main` only puts them in order.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import time
+from functools import partial
+
+import torch
+from torchrl.objectives import HardUpdate
+from tqdm import tqdm
+
+from maniskill_pnp.agents.collection import make_collector, resolve_backend, sync_weights, worker_seeds
+from maniskill_pnp.agents.pixel.checkpoint import load_checkpoint, restore, write_checkpoint
+from maniskill_pnp.agents.pixel.config import ARCHITECTURE_FIELDS, ClutterConfig
+from maniskill_pnp.agents.pixel.factories import make_action_mask, make_env, make_model, make_policy, make_worker_env
+from maniskill_pnp.agents.pixel.loss import PixelBCELoss, PixelDQNLoss
+from maniskill_pnp.agents.pixel.metrics import OutcomeTracker, log_episodes, log_scalars
+from maniskill_pnp.agents.pixel.replay import make_pixel_replay, pack_transition, to_transitions, unpack_transition
+from maniskill_pnp.agents.run_io import make_logger, require_logger, write_json
+
+
+def main(cfg: ClutterConfig) -> dict:
+    """Train one pixelwise DQN agent; returns a summary (run folder, steps, episodes, grasp success)."""
+    require_logger(cfg.logger)  # a missing tensorboard extra fails before anything is built
+    payload = resume_payload(cfg)
+    counters = dict(payload["counters"]) if payload else dict(steps=0, episodes=0, updates=0, grasps=0)
+    torch.manual_seed(cfg.seed)
+    run_dir = cfg.run_dir
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_json(run_dir / "config.json", cfg.to_json())
+
+    # build: env (a fresh episode seed on resume, so finished episodes are not replayed), network, actors, replay,
+    # learner; on resume all of them continue from the checkpoint
+    env_seed = cfg.seed + counters["episodes"]
+    env = make_env(cfg)
+    env.set_seed(env_seed)
+    model = make_model(cfg)
+    _, explore, egreedy = make_policy(cfg, model, env.action_spec)
+    replay = make_run_replay(cfg)
+    learner = Learner(cfg, model)
+    state = dict(model=model, loss=learner.loss, optimizer=learner.optimizer, egreedy=egreedy)
+    if payload is not None:
+        restore(payload, run_dir, replay=replay, **state)
+    summary = dict(run_dir=str(run_dir), start_step=counters["steps"], collection=collection_summary(cfg, env_seed))
+    if trained_enough(cfg, counters):
+        env.close()
+        return dict(summary, **counters, note="nothing left to train")
+    monitor = Monitor(cfg, counters, env.base_env.primitive_names)
+    collector, env = start_collector(cfg, explore, env, env_seed, frames=cfg.steps - counters["steps"])
+
+    # loop: collect one action per worker, store it, update, log, checkpoint
+    model.eval()  # acting uses BatchNorm's running statistics; the updates switch to train mode and back
+    t0, out_of_time = time.perf_counter(), False
+    for batch in collector:
+        n = batch.numel()
+        egreedy.step(n)
+        replay.extend(pack_transition(to_transitions(batch.reshape(-1))))
+        monitor.record(batch, counters)
+        if len(replay) >= cfg.learning_starts:
+            counters["updates"] += learner.update(replay, cfg.updates_per_step * n)
+        sync_weights(collector)  # the workers act with the new weights and ε
+        wall = time.perf_counter() - t0
+        out_of_time = bool(cfg.max_minutes) and wall >= 60 * cfg.max_minutes
+        done = out_of_time or trained_enough(cfg, counters)
+        monitor.show(n, counters, egreedy.eps.item(), learner.last_loss)
+        if crossed(counters["steps"], n, cfg.log_interval) or done:
+            monitor.log(counters, egreedy.eps.item(), learner.last_loss, batch, wall)
+        if crossed(counters["steps"], n, cfg.checkpoint_interval) or done:
+            write_checkpoint(run_dir, cfg=cfg, replay=replay, counters=counters, **state)
+            monitor.logger.flush()  # the logs reach the disk with every checkpoint
+        if done:
+            break
+
+    # close and summarize (the loop wrote the final checkpoint)
+    monitor.close()
+    collector.shutdown()
+    if env is not None:
+        env.close()
+    summary.update(counters, running_grasp_success=monitor.tracker.grasp_success,
+                   running_success_rate=monitor.tracker.success_rate, wall_s=time.perf_counter() - t0,
+                   stopped_by_time=out_of_time)
+    write_json(run_dir / "train_summary.json", summary)
+    return summary
+
+
+def resume_payload(cfg: ClutterConfig) -> dict | None:
+    """The checkpoint a ``resume`` run continues from (None for a fresh run); ValueError when its architecture
+    fields differ from ``cfg``'s."""
+    if not cfg.resume:
+        return None
+    ckpt = cfg.run_dir / "checkpoint.pt"
+    payload = load_checkpoint(ckpt)
+    saved = ClutterConfig.from_json(payload["config"])
+    changed = [f for f in ARCHITECTURE_FIELDS if getattr(saved, f) != getattr(cfg, f)]
+    if changed:
+        raise ValueError(f"cannot resume {ckpt}: {changed} differ from the checkpoint's config")
+    return payload
+
+
+def trained_enough(cfg: ClutterConfig, counters: dict) -> bool:
+    """Whether the run has reached its ``steps``, or its ``episodes`` when that is set."""
+    return counters["steps"] >= cfg.steps or bool(cfg.episodes and counters["episodes"] >= cfg.episodes)
+
+
+def crossed(step: int, n: int, interval: int) -> bool:
+    """Whether the last ``n`` steps, ending at ``step``, passed a multiple of ``interval``."""
+    return step // interval > (step - n) // interval
+
+
+def collection_summary(cfg: ClutterConfig, env_seed: int) -> dict:
+    """How the run collects: backend, workers, sync and each worker's env seed (recorded in the summary)."""
+    return dict(backend=resolve_backend(cfg.collector, cfg.workers), workers=cfg.workers, sync=cfg.sync,
+                worker_seeds=worker_seeds(env_seed, cfg.workers))
+
+
+def start_collector(cfg: ClutterConfig, explore, env, env_seed: int, frames: int):
+    """The collector of ``frames`` more actions of the ε-greedy actor ``explore``, and the env the caller still has
+    to close: ``env`` itself with the direct backend, else None (``env`` only gave the specs; it is closed here and
+    every worker builds its own)."""
+    backend = resolve_backend(cfg.collector, cfg.workers)
+    if backend != "direct":
+        env.close()
+        env = None
+    collector = make_collector(partial(make_worker_env, cfg), explore, seed=env_seed, total_frames=frames,
+                               workers=cfg.workers, backend=backend, sync=cfg.sync, env=env)
+    return collector, env
+
+
+class Monitor:
+    """What a run shows and records of its actions: the running metrics and ``actions.csv``
+    (:class:`~maniskill_pnp.agents.pixel.metrics.OutcomeTracker`), the logger (CSV or TensorBoard) and the progress
+    bar."""
+
+    def __init__(self, cfg: ClutterConfig, counters: dict, primitives: tuple[str, ...]):
+        self.tracker = OutcomeTracker(primitives, cfg.success_window, log_path=cfg.run_dir / "actions.csv",
+                                      start_step=counters["steps"])
+        self.logger = make_logger(cfg.run_dir, cfg.logger)
+        self.bar = tqdm(total=cfg.steps, initial=counters["steps"], desc=f"{cfg.task} {cfg.run_name}", unit="action")
+
+    def record(self, batch, counters: dict) -> None:
+        """Record a collector batch (metrics, ``actions.csv``, finished episodes) and count it into ``counters``."""
+        finished = self.tracker.add_batch(batch)
+        log_episodes(self.logger, finished, first=counters["episodes"] + 1)
+        counters.update(steps=counters["steps"] + batch.numel(), episodes=counters["episodes"] + len(finished),
+                        grasps=counters["grasps"] + self.tracker.last_grasps)
+
+    def show(self, n: int, counters: dict, eps: float, loss: float) -> None:
+        t = self.tracker
+        self.bar.update(n)
+        self.bar.set_postfix(grasp=f"{t.grasp_success:.2f}", success=f"{t.success_rate:.2f}", eps=f"{eps:.2f}",
+                             loss=f"{loss:.3g}", episodes=counters["episodes"])
+
+    def log(self, counters: dict, eps: float, loss: float, batch, wall: float) -> None:
+        """Log the training metrics at the current step."""
+        log_scalars(self.logger, counters["steps"], {
+            "train/loss": loss, "train/epsilon": eps, "train/reward": float(batch.get(("next", "reward")).mean()),
+            "train/grasp_success": self.tracker.grasp_success, "train/success_rate": self.tracker.success_rate,
+            "train/episodes": counters["episodes"], "time/wall_s": wall})
+
+    def close(self) -> None:
+        self.bar.close()
+        self.tracker.close()
+        self.logger.close()  # flushes TensorBoard's buffered events into the file
+
+
+def make_run_replay(cfg: ClutterConfig):
+    """The run's prioritized replay: packed heightmaps, memory-mapped in the run folder's scratch ``replay/``."""
+    shutil.rmtree(cfg.run_dir / "replay", ignore_errors=True)
+    return make_pixel_replay(cfg.replay_capacity, cfg.run_dir / "replay", cfg.replay_alpha, cfg.replay_beta,
+                             batch_size=cfg.batch_size)
+
+
+class Learner:
+    """The config's loss (pixelwise DQN, or the binary-classification baseline), its target-network updater and the
+    optimizer; :meth:`update` runs SGD steps on prioritized replay batches."""
+
+    def __init__(self, cfg: ClutterConfig, model: torch.nn.Module):
+        self.model = model
+        if cfg.loss == "bce":
+            self.loss, self.key = PixelBCELoss(model), "loss_bce"
+        else:
+            mask = make_action_mask(cfg)  # the bootstrap ranges over the actions the actor may take
+            self.loss, self.key = PixelDQNLoss(model, gamma=cfg.gamma, delay_value=cfg.delay_value, double_dqn=cfg.double_dqn,
+                                               action_mask=None if mask is None else mask.from_observation), "loss_qvalue"
+        self.updater = HardUpdate(self.loss, value_network_update_interval=cfg.target_update_interval) if cfg.delay_value else None
+        if cfg.optimizer == "adam":
+            self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        else:
+            self.optimizer = torch.optim.SGD(self.loss.parameters(), lr=cfg.lr, momentum=cfg.momentum,
+                                             weight_decay=cfg.weight_decay)
+        self.last_loss = math.nan
+
+    def update(self, replay, steps: int) -> int:
+        """``steps`` SGD steps, each on a fresh prioritized batch whose priorities it then refreshes (the network in
+        train mode meanwhile); returns ``steps``."""
+        self.model.train()
+        for _ in range(steps):
+            sample = unpack_transition(replay.sample())
+            loss = self.loss(sample)[self.key]
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self.optimizer.step()
+            if self.updater is not None:
+                self.updater.step()
+            replay.update_tensordict_priority(sample)
+            self.last_loss = loss.item()
+        self.model.eval()
+        return steps
+
+
+__all__ = ["Learner", "Monitor", "collection_summary", "crossed", "main", "make_run_replay", "resume_payload",
+           "start_collector", "trained_enough"]

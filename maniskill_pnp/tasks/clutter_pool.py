@@ -1,0 +1,185 @@
+"""The objects of a clutter task: one pool of procedural actors shared by every sub-scene, drawn per env.
+
+A :class:`ClutterPool` builds its actors once (a seeded library of random objects, or exactly the objects of
+explicit layouts), parks the unused ones on the floor far from the robot and the cameras, draws each env's episode
+clutter from the env's seeded RNG (a random subset dropped by :func:`~maniskill_pnp.tasks.clutter.sample_clutter`,
+or one of the layouts), puts the pool at those poses, gives the :class:`~maniskill_pnp.planning.lockstep.Motion`
+that lets a dropped clutter come to rest, and says where each env's objects are and whether one blew up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import sapien
+import torch
+
+from mani_skill.utils.structs.pose import Pose
+
+from maniskill_pnp.planning.lockstep import Motion
+from maniskill_pnp.tasks.clutter import object_status, random_specs, sample_clutter
+from maniskill_pnp.tasks.objects import ObjectSpec, build_object
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+#: Height of the floor under ManiSkill's table scene (where unused pool objects wait).
+FLOOR_Z = -0.9196
+
+
+@dataclass(frozen=True)
+class SettleSpec:
+    """The settle after dropping a clutter: at least ``min_steps``, at most ``max_steps`` control steps, until every
+    object moves slower than ``linear`` m/s and ``angular`` rad/s."""
+
+    min_steps: int = 3
+    max_steps: int = 60
+    linear: float = 0.005
+    angular: float = 0.05
+
+
+@dataclass
+class ClutterPool:
+    """The pool of object actors of a clutter task and each env's episode objects.
+
+    Args:
+        workspace: Where clutters are dropped and objects are counted.
+        num_envs: Sub-scenes sharing the pool.
+        layouts: Explicit layouts (lists of ``(ObjectSpec, pose)``, validated) or None for random clutters.
+        num_objects: (min, max) objects of a random clutter.
+        kinds: Object kinds of the random library.
+        loosely_packed, min_gap: How random clutters are dropped (:func:`~maniskill_pnp.tasks.clutter.sample_clutter`).
+        size: Library size of random clutters (at least ``num_objects[1]``).
+        library_seed: Seed of the random library (its shapes, sizes and colours).
+        settle: The settle after a drop.
+        max_speed: Speed (m/s) above which an object counts as blown up by the physics.
+    """
+
+    workspace: WorkspaceSpec
+    num_envs: int
+    layouts: list | None
+    num_objects: tuple[int, int]
+    kinds: tuple[str, ...]
+    loosely_packed: bool = True
+    min_gap: float = 0.01
+    size: int = 20
+    library_seed: int = 1234
+    settle: SettleSpec = field(default_factory=SettleSpec)
+    max_speed: float = 5.0
+
+    def __post_init__(self):
+        if self.layouts is not None:
+            self.specs, self.layout_slots = shared_pool(self.layouts)
+        else:
+            rng = np.random.default_rng(self.library_seed)
+            self.specs = random_specs(rng, max(self.size, self.num_objects[1]), self.kinds)
+        self.names = [f"obj_{i}_{spec.kind}" for i, spec in enumerate(self.specs)]
+        self.actors: list = []
+        n = self.num_envs
+        #: Per env: the pool indices of the episode's objects, their names and actors, and its layout (-1: random).
+        self.active_index: list[list[int]] = [[] for _ in range(n)]
+        self.active: list[list[str]] = [[] for _ in range(n)]
+        self.active_actors: list[list] = [[] for _ in range(n)]
+        self.layout_index = np.full(n, -1)
+
+    def build(self, scene) -> None:
+        """Build the pool's actors in ``scene`` (every sub-scene), parked."""
+        self.actors = [build_object(scene, spec, name, self._park_pose(i)) for i, (spec, name) in enumerate(zip(self.specs, self.names))]
+
+    def _park_pose(self, i: int) -> sapien.Pose:
+        spec = self.specs[i]
+        return sapien.Pose(p=[1.6 + 0.15 * (i % 6), -0.5 + 0.15 * (i // 6), FLOOR_Z + spec.extents[2] / 2 + 1e-3])
+
+    def draw(self, envs: list[int], rngs: list[np.random.Generator], layout_choice, device) -> None:
+        """New episode objects for ``envs`` (one seeded RNG each), every pool actor put at its pose in those envs
+        (drop poses for the chosen ones, parked otherwise) and at rest.
+
+        Args:
+            layout_choice: ``layout_choice(rng)`` → the index of the layout to use (explicit layouts only).
+        """
+        b = len(envs)
+        poses = [[self._park_pose(i)] * b for i in range(len(self.actors))]  # pool index -> pose in each reset env
+        for k, (e, rng) in enumerate(zip(envs, rngs)):
+            if self.layouts is not None:
+                j = self.layout_index[e] = layout_choice(rng)
+                chosen, placed = list(self.layout_slots[j]), [pose for _, pose in self.layouts[j]]
+            else:
+                self.layout_index[e] = -1
+                lo, hi = self.num_objects
+                chosen = sorted(rng.choice(len(self.actors), size=int(rng.integers(lo, hi + 1)), replace=False).tolist())
+                placed = sample_clutter(rng, [self.specs[i] for i in chosen], self.workspace, self.loosely_packed, self.min_gap)
+            for i, pose in zip(chosen, placed):
+                poses[i][k] = pose
+            self.active_index[e] = chosen
+            self.active[e] = [self.names[i] for i in chosen]
+            self.active_actors[e] = [self.actors[i] for i in chosen]
+        zeros = torch.zeros(b, 3, device=device)
+        for actor, actor_poses in zip(self.actors, poses):
+            p = torch.as_tensor(np.stack([pose.p for pose in actor_poses]), dtype=torch.float32, device=device)
+            q = torch.as_tensor(np.stack([pose.q for pose in actor_poses]), dtype=torch.float32, device=device)
+            actor.set_pose(Pose.create_from_pq(p=p, q=q))
+            actor.set_linear_velocity(zeros)
+            actor.set_angular_velocity(zeros)
+
+    def settle_motion(self, env: int, home: np.ndarray) -> Motion:
+        """Env ``env``'s settle: its arm held at ``home`` with the gripper open until its objects are at rest."""
+        s = self.settle
+
+        def at_rest() -> bool:
+            return all(float(torch.linalg.norm(a.linear_velocity[env])) < s.linear
+                       and float(torch.linalg.norm(a.angular_velocity[env])) < s.angular
+                       for a in self.active_actors[env])
+
+        return Motion(home[None], gripper=1.0, min_steps=s.min_steps, settle_tol=None, until=at_rest,
+                      max_settle=s.max_steps - s.min_steps)
+
+    def status(self, env: int) -> list[str]:
+        """Where each of env ``env``'s objects is (:func:`~maniskill_pnp.tasks.clutter.object_status`)."""
+        actors = self.active_actors[env]
+        pos = np.stack([a.pose.p[env].cpu().numpy() for a in actors]) if actors else np.zeros((0, 3))
+        return object_status(pos, self.workspace)
+
+    def in_workspace(self, env: int) -> list[str]:
+        """Names of env ``env``'s objects still in the workspace."""
+        return [name for name, s in zip(self.active[env], self.status(env)) if s == "workspace"]
+
+    def in_play(self) -> list[int]:
+        """Pool indices in some env's episode."""
+        return sorted({i for index in self.active_index for i in index})
+
+    def blow_ups(self) -> list[str]:
+        """Per env, the first of its objects with a non-finite pose or velocity or faster than ``max_speed`` ("" if
+        none); each pool object in play is read once for all envs."""
+        faults = [""] * self.num_envs
+        used = self.in_play()
+        pose = {i: self.actors[i].pose.p for i in used}
+        vel = {i: self.actors[i].linear_velocity for i in used}
+        for e in range(self.num_envs):
+            for i in self.active_index[e]:
+                p, v = pose[i][e], vel[i][e]
+                if not (torch.isfinite(p).all() and torch.isfinite(v).all()) or float(v.norm()) > self.max_speed:
+                    faults[e] = f"physics blow-up: {self.names[i]} at {p.tolist()} moving at {float(v.norm()):.3g} m/s"
+                    break
+        return faults
+
+
+def shared_pool(layouts) -> tuple[list[ObjectSpec], list[list[int]]]:
+    """One pool for several layouts: each distinct spec as many times as the layout that uses it most.
+
+    Returns:
+        The pool's specs and, per layout, the pool index of each of its entries.
+    """
+    pool: list[ObjectSpec] = []
+    slots = []
+    for layout in layouts:
+        used: dict[ObjectSpec, int] = {}
+        indices = []
+        for spec, _ in layout:
+            copies = [i for i, s in enumerate(pool) if s == spec]
+            k = used.get(spec, 0)
+            if k == len(copies):
+                pool.append(spec)
+                copies.append(len(pool) - 1)
+            indices.append(copies[k])
+            used[spec] = k + 1
+        slots.append(indices)
+    return pool, slots
