@@ -87,6 +87,8 @@ PRESET_VALUES = {
     "gs-no-slide-reward": dict(task="grasp_slide", reward_scheme="no_slide_reward", backbone="densenet121"),
     "gs-no-depth": dict(task="grasp_slide", use_depth=False, backbone="densenet121", num_rotations=16),
     "gs-double-dqn": dict(task="grasp_slide", double_dqn=True, delay_value=True, backbone="densenet121"),
+    "cpu-equi": dict(task="grasp", backbone="equivariant", num_rotations=16, heightmap_size=64, steps=300, batch_size=4),
+    "gs-cpu-equi": dict(task="grasp_slide", backbone="equivariant", num_rotations=16, heightmap_size=64, steps=300),
 }
 
 

@@ -199,3 +199,20 @@ def test_time_parameterization_falls_back_to_constant_speed_when_toppra_fails():
     steps = np.abs(np.diff(np.vstack([path[:1], qs]), axis=0)).max(axis=1)
     assert np.allclose(qs[-1], path[-1]) and steps.max() <= 1.0 * 0.05 + 1e-9
     assert len(qs) == int(np.ceil(0.3 / 0.05)) + int(np.ceil(0.6 / 0.05))  # the fastest joint at full speed throughout
+
+
+def test_a_free_motion_starting_against_a_movable_object_moves_away_from_it(cube_env):
+    """A failed lift or retract can leave the fingers touching an object; the next free-space motion (e.g. the way
+    home) must not fail on its start configuration: the objects the arm touches at the start are no obstacles."""
+    prims = _prims(cube_env)
+    q_start = prims.executor.qpos()
+    finger = cube_env.unwrapped.agent.finger1_link.pose.p[0].numpy()
+    cube_env.unwrapped.cube.set_pose(sapien.Pose(p=finger))  # the cube inside the finger: the start collides
+    prims.world.sync_scene(cube_env.unwrapped.scene)
+    assert ("panda_leftfinger", "cube") in prims.world.collisions(q_start)
+    goal = q_start.copy()
+    goal[0] += 0.6
+    res = prims.move_to(goal)
+    assert res.ok, res.reason
+    assert "leaving ['cube'] that the arm touched at the start" in res.stages[-1][2]
+    assert np.abs(prims.executor.qpos() - goal).max() < 0.05

@@ -74,6 +74,9 @@ def _check_sizes(backbone: str, num_rotations: int, heightmap_size: int, counts:
 
     if threads is not None and threads < 1:
         raise ValueError(f"threads must be >= 1 (or None for torch's default), got {threads}")
+    if backbone == "equivariant":
+        raise ValueError("the pixel benchmarks measure the rotated-trunk networks; the equivariant backbone has no trunk "
+                         f"(choose one of {sorted(BACKBONES)})")
     if backbone not in BACKBONES:
         raise ValueError(f"backbone must be one of {sorted(BACKBONES)}, got {backbone!r}")
     if num_rotations < 1 or heightmap_size < 1:

@@ -285,8 +285,26 @@ class MotionPrimitives:
         res.grasped = bool(np.min(fingers) > self.EMPTY_GAP) and closed_on_something and bool(held)
         if not res.grasped:
             why = "jaws closed on nothing" if not closed_on_something else "object slipped or was not lifted"
+            if lifted:  # it came up without a grasp (on a finger, or wedged): put it back before going anywhere
+                yield from self._put_back(goal, up, sorted(lifted), res)
+                why += f"; {sorted(lifted)} came up with the fingers and was put back"
             raise _StageFailed("grasp_check", why)
         self.held = res.held = max(held, key=lambda n: lifted[n])
+
+    def _put_back(self, down: sapien.Pose, up: sapien.Pose, names: list[str], res: PrimitiveResult) -> None:
+        """Lower the jaws back to ``down``, open them and rise to ``up`` again, so that objects that came up
+        without a grasp stay in the workspace instead of riding on the gripper (a straight move that fails is
+        skipped: the jaws then open where they are)."""
+        for pose, stage in ((down, "put_back"), (None, None), (up, "put_back_lift")):
+            if pose is None:
+                yield self._gripper(1.0, self.GRIPPER_STEPS)
+                for name in names:
+                    yield self._wait_at_rest(name)
+                continue
+            try:
+                yield from self._straight(pose, stage, res)
+            except _StageFailed as e:
+                res.stages.append((e.stage, False, e.reason))
 
     def _check_target(self, target: str | None) -> set[str]:
         movable = self._movable()
@@ -397,9 +415,19 @@ class MotionPrimitives:
         if not plan.ok and plan.reason.startswith(("start", "goal")):
             self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles)
             plan = self._timed(self.planner.plan, self.executor.qpos(), q_goal)
+        detail = ""
+        if not plan.ok and plan.reason.startswith("start"):
+            # The arm already touches movable objects (a failed lift or retract left it among them): moving away is
+            # what frees it, so those objects are no obstacles for this motion.
+            touching = {other for _, other in self.world.collisions(self.executor.qpos())} & self._movable()
+            if touching:
+                self.world.sync_scene(self.env.scene, ignore=self._ignored | touching, env_idx=self.env_idx,
+                                      skip=self.non_obstacles)
+                plan = self._timed(self.planner.plan, self.executor.qpos(), q_goal)
+                detail = f", leaving {sorted(touching)} that the arm touched at the start"
         if not plan.ok:
             raise _StageFailed(stage, plan.reason)
-        yield from self._execute(plan.path, stage, res, "cached plan" if plan.cached else f"{len(plan.path)} waypoints")
+        yield from self._execute(plan.path, stage, res, ("cached plan" if plan.cached else f"{len(plan.path)} waypoints") + detail)
 
     def _straight(self, goal: sapien.Pose, stage: str, res: PrimitiveResult) -> None:
         seg = self._timed(self.kin.straight_line, self.executor.qpos(), goal)

@@ -362,20 +362,23 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         """Per env, why its episode cannot go on ("" when it can), checked after every action with the arms at home:
 
         * a physics blow-up: an object with a non-finite pose or velocity, or faster than :attr:`MAX_OBJECT_SPEED`;
-        * an object resting on the gripper (in contact with a finger or the hand at the home pose), which would
-          make every later plan start in collision.
+        * an object resting on the gripper (in contact with a finger or the hand after the step, whether the arm
+          reached its home pose or not), which would make every later plan start in collision.
 
         ``step`` sets ``info["fault"]`` (the reason in ``info["fault_reason"]``) and truncates that env's episode;
         objects thrown out of the workspace are counted in ``info["lost_objects"]`` as usual.
         """
         faults = self.clutter.blow_ups()
         links = (self.agent.finger1_link, self.agent.finger2_link, self.agent.robot.links_map["panda_hand"])
+        qpos = self.agent.robot.get_qpos()[:, : len(self.home_qpos)].cpu().numpy()
+        at_home = np.abs(qpos - self.home_qpos).max(axis=1) < 0.05
         for i in self.clutter.in_play():
             for link in links:
                 force = self.scene.get_pairwise_contact_forces(link, self.clutter.actors[i]).norm(dim=-1).reshape(-1)
                 for e in range(self.num_envs):
                     if not faults[e] and i in self.clutter.active_index[e] and float(force[e]) > self.GRIPPER_CONTACT_FORCE:
-                        faults[e] = f"{self.clutter.names[i]} rests on the gripper ({link.name}) at the home pose"
+                        where = "at the home pose" if at_home[e] else "away from the home pose (the way home failed)"
+                        faults[e] = f"{self.clutter.names[i]} rests on the gripper ({link.name}) {where}"
         return faults
 
     # ------------------------------------------------------------------ observation and info

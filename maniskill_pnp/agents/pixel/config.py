@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from maniskill_pnp.agents.collection import check_collection
-from maniskill_pnp.agents.pixel.fcn import BACKBONES
+from maniskill_pnp.agents.pixel.fcn import BACKBONE_CHOICES, EQUIVARIANT
 from maniskill_pnp.agents.pixel.policy import PrimitiveExploreMask
 from maniskill_pnp.agents.run_io import LOGGERS, RunConfig, require_positive
 from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv
@@ -32,7 +32,7 @@ TASKS = {
 LOSSES = ("dqn", "bce")
 OPTIMIZERS = ("sgd", "adam")
 #: The valid values of the config's choice fields (checked by the config, offered as choices by the command line).
-CHOICES = dict(task=tuple(TASKS), loss=LOSSES, optimizer=OPTIMIZERS, backbone=tuple(sorted(BACKBONES)),
+CHOICES = dict(task=tuple(TASKS), loss=LOSSES, optimizer=OPTIMIZERS, backbone=BACKBONE_CHOICES,
                reward_scheme=tuple(REWARD_SCHEMES), logger=LOGGERS)
 #: Fields that fix the network's shape or the task: a resumed run must keep them.
 ARCHITECTURE_FIELDS = (
@@ -59,13 +59,18 @@ class ClutterConfig(RunConfig):
     reward_scheme: str = "default"
     """Reward scheme of ClutterGraspSlide-v1 ("default" or "no_slide_reward"); must be "default" for task grasp."""
     backbone: str = "small"
-    """Feature trunk of the Q network: "densenet121" (thesis), "resnet101" or "small" (ResNet-18 to layer2)."""
+    """Feature trunk of the Q network: "densenet121" (thesis), "resnet101" or "small" (ResNet-18 to layer2), each run on
+    R rotated copies of the heightmap; or "equivariant": a small rotation-equivariant (e2cnn, C_R) network giving all R
+    maps in one pass on the unrotated heightmap, its grasp maps r and r + R/2 tied (needs num_rotations >= 2, no
+    pretrained weights)."""
     pretrained_path: str | None = None
-    """Local state_dict of the full torchvision classifier of the backbone (never downloaded); None: random init."""
+    """Local state_dict of the full torchvision classifier of the backbone (never downloaded); None: random init (the
+    only choice for the equivariant backbone)."""
     use_depth: bool = True
     """Keep the depth trunk beside the colour trunk (False: the thesis' colour-only ablation)."""
     head_channels: int = 64
-    """Width of the hidden 1x1 convolution of the Q head."""
+    """Width of the hidden 1x1 convolution of the Q head (equivariant backbone: channels of its full-resolution layers,
+    in whole regular fields of num_rotations channels)."""
     num_rotations: int = 4
     """Grasp yaws evenly spaced over 360 degrees (the thesis uses 16)."""
     heightmap_size: int = 64
@@ -174,6 +179,9 @@ class ClutterConfig(RunConfig):
                     "batch_size", "updates_per_step", "learning_starts", "replay_capacity", "eps_decay_steps", "checkpoint_interval",
                     "log_interval", "success_window")
         require_positive(self, positive)
+        if self.backbone == EQUIVARIANT and (self.pretrained_path is not None or self.num_rotations < 2):
+            raise ValueError(f"the equivariant backbone needs num_rotations >= 2 and no pretrained_path, got "
+                             f"{self.num_rotations} and {self.pretrained_path!r}")
         object.__setattr__(self, "explore_weights", tuple(float(w) for w in self.explore_weights))
         if self.explore_weights and len(self.explore_weights) != len(self.primitives):
             raise ValueError(f"explore_weights needs one weight per primitive {self.primitives}, got {self.explore_weights}")

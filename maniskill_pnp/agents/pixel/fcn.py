@@ -15,9 +15,10 @@ one Q map per rotation, ``(B, R, H, W)``. Its structure follows the thesis (and 
 Rotation ``r`` is the one of :class:`~maniskill_pnp.tasks.workspace.WorkspaceSpec`: jaws closing along
 ``yaw = r * 2*pi / R`` from world x, where the heightmap's col axis is world x and its row axis world y.
 
-:class:`MultiPrimitiveQNetwork` holds one :class:`PixelQNetwork` per primitive (grasp; left slide; right slide) and
-stacks their maps to ``(B, P, R, H, W)``, whose row-major flat index is the one of
-:class:`~maniskill_pnp.tasks.pixel_action.PixelActionLayout`.
+:class:`MultiPrimitiveQNetwork` holds one Q network per primitive (grasp; left slide; right slide), a
+:class:`PixelQNetwork` or, with the ``"equivariant"`` backbone, an
+:class:`~maniskill_pnp.agents.pixel.equivariant.EquivariantPixelQNetwork`, and stacks their maps to
+``(B, P, R, H, W)``, whose row-major flat index is the one of :class:`~maniskill_pnp.tasks.pixel_action.PixelActionLayout`.
 
 Backbones (``backbone=``):
 
@@ -27,6 +28,12 @@ Backbones (``backbone=``):
 * ``"small"`` (CPU presets and tests): ResNet-18 truncated after ``layer2``, 128 channels at stride 8. It keeps
   the torchvision weight layout (so a local ResNet-18 checkpoint can initialise it), costs about a tenth of a
   DenseNet-121 trunk per pixel and, at stride 8, still gives usable maps on small heightmaps.
+
+* ``"equivariant"``: no rotated copies at all: a small ``C_R``-equivariant network (e2cnn steerable convolutions)
+  whose output fibre is one Q map per rotation, from a single forward pass on the unrotated heightmap; the grasp
+  net ties each jaw orientation to the one turned by 180 degrees. See
+  :class:`~maniskill_pnp.agents.pixel.equivariant.EquivariantPixelQNetwork`; :class:`MultiPrimitiveQNetwork` builds
+  it instead of a :class:`PixelQNetwork` (:func:`make_pixel_q_network`). It has no pretrained weights.
 
 Pretrained weights are never downloaded: pass ``pretrained_path``, a local file holding the ``state_dict`` of the
 complete torchvision classifier of the chosen backbone; it is loaded strictly, then truncated to the trunk.
@@ -94,6 +101,15 @@ BACKBONES: dict[str, _Backbone] = {
         offset=0.0,
     ),
 }
+
+
+#: The backbone that is not a trunk of :class:`PixelQNetwork` but a rotation-equivariant network of its own.
+EQUIVARIANT = "equivariant"
+#: Every backbone a :class:`MultiPrimitiveQNetwork` can be built with.
+BACKBONE_CHOICES = tuple(sorted([*BACKBONES, EQUIVARIANT]))
+#: Primitives whose action is the same when the jaws are turned by 180 degrees (rotation ``r`` and ``r + R/2``): the
+#: equivariant backbone ties their maps.
+HALF_TURN_SYMMETRIC = frozenset({"grasp"})
 
 
 def make_trunk(backbone: str, pretrained_path: str | os.PathLike | None = None) -> nn.Module:
@@ -284,12 +300,36 @@ class PixelQNetwork(nn.Module):
         return self._maps_at(heightmaps, self.angles[rotation])
 
 
+def make_pixel_q_network(primitive: str, *, backbone: str = "densenet121",
+                         pretrained_path: str | os.PathLike | None = None, **net_kwargs) -> nn.Module:
+    """The Q network of one primitive: a :class:`PixelQNetwork` with a trunk ``backbone``, or for ``"equivariant"``
+    an :class:`~maniskill_pnp.agents.pixel.equivariant.EquivariantPixelQNetwork`, whose maps ``r`` and ``r + R/2``
+    are tied for the primitives of :data:`HALF_TURN_SYMMETRIC` (the grasp) and free for the others (slides).
+
+    ``net_kwargs``: ``num_rotations``, ``use_depth``, ``head_channels``, ``depth_mean``, ``depth_std`` (both kinds).
+
+    Raises:
+        ValueError: an unknown backbone, or a ``pretrained_path`` for the equivariant one.
+    """
+    if backbone not in BACKBONE_CHOICES:
+        raise ValueError(f"backbone must be one of {list(BACKBONE_CHOICES)}, got {backbone!r}")
+    if backbone != EQUIVARIANT:
+        return PixelQNetwork(backbone=backbone, pretrained_path=pretrained_path, **net_kwargs)
+    if pretrained_path is not None:
+        raise ValueError("the equivariant backbone has no pretrained weights: pretrained_path must be None")
+    from maniskill_pnp.agents.pixel.equivariant import EquivariantPixelQNetwork  # imports e2cnn (about a second)
+
+    return EquivariantPixelQNetwork(symmetric=primitive in HALF_TURN_SYMMETRIC, **net_kwargs)
+
+
 class MultiPrimitiveQNetwork(nn.Module):
-    """One :class:`PixelQNetwork` per primitive: ``(B, 4, H, W)`` -> ``(B, P, R, H, W)``.
+    """One pixel Q network per primitive: ``(B, 4, H, W)`` -> ``(B, P, R, H, W)``.
 
     Args:
         primitives: Primitive names, in action-index order (e.g. ``("grasp", "left_slide", "right_slide")``).
-        **net_kwargs: Keyword arguments of every :class:`PixelQNetwork`.
+        **net_kwargs: Keyword arguments of every primitive's network (:func:`make_pixel_q_network`): those of
+            :class:`PixelQNetwork`, whose ``backbone="equivariant"`` builds
+            :class:`~maniskill_pnp.agents.pixel.equivariant.EquivariantPixelQNetwork` instead.
     """
 
     def __init__(self, primitives: Sequence[str] = ("grasp",), **net_kwargs):
@@ -298,7 +338,7 @@ class MultiPrimitiveQNetwork(nn.Module):
         if not primitives or len(set(primitives)) != len(primitives):
             raise ValueError(f"primitives must be a non-empty sequence of unique names, got {primitives!r}")
         self.primitives = primitives
-        self.nets = nn.ModuleDict({name: PixelQNetwork(**net_kwargs) for name in primitives})
+        self.nets = nn.ModuleDict({name: make_pixel_q_network(name, **net_kwargs) for name in primitives})
 
     @property
     def num_rotations(self) -> int:
@@ -313,7 +353,8 @@ class MultiPrimitiveQNetwork(nn.Module):
 
         Equal to ``forward(heightmaps).reshape(N, -1)[n, action[n]]`` in eval mode, but only the executed
         primitive's network runs, on the executed rotation's image (:meth:`PixelQNetwork.rotation_maps`): a
-        ``P * R`` times smaller forward and backward than the full maps.
+        ``P * R`` times smaller forward and backward than the full maps (the equivariant backbone gets every
+        rotation from one pass anyway: a ``P`` times smaller one).
 
         Raises:
             ValueError: a non-integer action or an index outside ``0..P*R*H*W-1``.
