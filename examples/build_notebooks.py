@@ -341,7 +341,7 @@ CONVEYOR = [
 # Tabular Q-learning vs SARSA on the conveyor (thesis chapter 4)
 
 `ConveyorProximity-v1` has 640 state ids and at most 9 actions, so the thesis learns it with a **Q-table**.
-`maniskill_pnp.agents.conveyor_recipe` trains one on TorchRL: the table is a TorchRL module, exploration is
+`maniskill_pnp.agents.tabular.recipe` trains one on TorchRL: the table is a TorchRL module, exploration is
 `EGreedyModule` over the phase's valid actions (the action mask comes from the public `ConveyorSpec`), a TorchRL
 `Collector` drives `make_torchrl_env("ConveyorProximity-v1")`, and the two algorithms differ only in the bootstrap
 term of the TD update:
@@ -350,7 +350,7 @@ term of the TD update:
 * SARSA (on-policy): $Q(s,a) \\leftarrow Q(s,a) + \\alpha\\,[r + \\gamma\\, Q(s',a'_{\\text{taken}}) - Q(s,a)]$
 
 This is what `maniskill-pnp train-conveyor --algorithm qlearning|sarsa` runs (`cli.py` builds a `ConveyorConfig`
-from its options and calls `conveyor_recipe.main`), followed by `maniskill-pnp eval-conveyor` (`conveyor_eval.run`).
+from its options and calls `agents.tabular.recipe.main`), followed by `maniskill-pnp eval-conveyor` (`agents.tabular.evaluate.run`).
 
 **Sizes.** The full setting (all 3 speed classes, 3000 training steps per agent: about 5.5 min each on 2 cores) is
 what the README reports. The Q-table starts optimistic (1.0, the reward of a placed object), so the greedy policy
@@ -397,7 +397,7 @@ for algorithm, cfg in configs.items():
 ## Learning curves
 
 The running success rate of the ε-greedy behaviour (mean over the last 100 episodes), read back from each run's
-CSV log with `conveyor_eval.read_curve`, side by side, with ε on the same axes. The first few hundred steps are
+CSV log with `agents.tabular.evaluate.read_curve`, side by side, with ε on the same axes. The first few hundred steps are
 the optimistic exploration; then the success rate climbs.
 '''),
     code('''
@@ -447,7 +447,7 @@ display(Markdown("(pre-pick index, grasp index) per sensed case\\n\\n" + "\\n".j
     md('''
 ## Greedy evaluation
 
-`conveyor_eval.run` (the `eval-conveyor` command) runs both greedy policies on the same seeded episodes:
+`agents.tabular.evaluate.run` (the `eval-conveyor` command) runs both greedy policies on the same seeded episodes:
 
 * per category (thesis Tables II-VII): every (object kind, alignment, speed) cell, `CATEGORY_ITERATIONS` episodes
   each; summarized below per speed class, where the speed trained on stands out;

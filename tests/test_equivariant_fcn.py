@@ -72,7 +72,7 @@ def transitions(b: int, layout: PixelActionLayout, actions, *, seed: int) -> Ten
 def test_rot90_of_the_heightmap_turns_the_world_by_minus_90_degrees_and_the_rotation_index_by_minus_r_over_4():
     """Derive the index shift from WorkspaceSpec itself: where rot90 sends a pixel, in world coordinates, and what
     that turn does to a grasp's jaw direction and to a slide's push direction."""
-    ws = WorkspaceSpec(heightmap_size=8, pixel_size=0.01, num_rotations=R)
+    ws = WorkspaceSpec(heightmap_size=8, pixel_size=0.05, num_rotations=R)
     index = torch.arange(64).reshape(8, 8)
     centre = np.asarray(ws.center)
     angles = []

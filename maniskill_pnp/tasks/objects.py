@@ -35,7 +35,14 @@ import sapien
 KINDS = ("cuboid", "cylinder", "sphere", "L", "T", "U", "arch", "wedge", "hull")
 REGULAR_KINDS = ("cuboid", "cylinder", "sphere")
 IRREGULAR_KINDS = ("L", "T", "U", "arch", "wedge", "hull")
-_SIZE_ARITY = {"cuboid": 3, "cylinder": 2, "sphere": 1, "L": 4, "T": 4, "U": 4, "arch": 4, "wedge": 3, "hull": 3}
+#: Names of the ``size`` values of each kind, in order (see the module table).
+SIZE_PARAMS = {
+    "cuboid": ("hx", "hy", "hz"), "cylinder": ("radius", "half_height"), "sphere": ("radius",),
+    "L": ("length", "width", "thickness", "height"), "T": ("length", "width", "thickness", "height"),
+    "U": ("length", "width", "thickness", "height"), "arch": ("length", "width", "leg", "height"),
+    "wedge": ("length", "width", "height"), "hull": ("dx", "dy", "dz"),
+}
+_SIZE_ARITY = {kind: len(names) for kind, names in SIZE_PARAMS.items()}
 
 #: Graspability limits (m).
 MAX_GRASP_WIDTH = 0.07

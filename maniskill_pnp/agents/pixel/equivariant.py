@@ -63,6 +63,8 @@ in the ``state_dict``, which keeps the learned weights and the BatchNorm statist
 
 from __future__ import annotations
 
+import warnings
+
 import torch
 import torch.nn.functional as F
 from e2cnn import gspaces
@@ -87,7 +89,9 @@ class _SteerableConv(enn.R2Conv):
     """
 
     def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
+        with warnings.catch_warnings():  # e2cnn 0.2.3 indexes its basis masks with uint8 tensors
+            warnings.filterwarnings("ignore", message="indexing with dtype torch.uint8", category=UserWarning)
+            super().__init__(*args, **kwargs)
         for name in ("filter", "expanded_bias"):
             self._buffers.pop(name, None)
             self.__dict__.pop(name, None)

@@ -1,0 +1,448 @@
+"""Scene files: a clutter layout (objects and their poses) as a YAML or JSON file, to replay, share or hand-edit.
+
+The file's extension chooses the syntax (``.yaml`` / ``.yml``: YAML, ``.json``: JSON); both hold the same schema::
+
+    format: 1                    # version of this schema (FORMAT_VERSION); required
+    frame: workspace             # "workspace" or "world"; required
+    name: two_bars               # optional text
+    description: two bars side by side   # optional text
+    objects:                     # one entry per object, at least one
+      - kind: cuboid             # one of the procedural kinds of objects.KINDS
+        size: [0.02, 0.045, 0.02]    # the kind's size values, metres (objects.SIZE_PARAMS)
+        color: [0.15, 0.35, 0.85]    # optional RGB in 0..1 (default ObjectSpec's 0.8, 0.3, 0.2)
+        position: [-0.0205, 0.0, 0.02]   # metres, of the centre of the object's bounding box
+        quaternion: [1.0, 0.0, 0.0, 0.0]  # w, x, y, z
+      - kind: hull
+        size: [0.05, 0.04, 0.03]
+        seed: 7                  # optional int >= 0: the random points of a hull (ignored by the other kinds)
+        position: [0.03, 0.0, 0.015]
+        euler: {convention: xyz, angles: [0, 0, 30], degrees: true}
+
+Frames. ``workspace``: x and y from the workspace centre (:attr:`WorkspaceSpec.center`), z above the table top
+(:attr:`WorkspaceSpec.table_z`); the axes are the world's, so orientations are the same in both frames. A
+workspace-frame file fits any workspace whose square holds it (the heightmap size does not matter). ``world``: the
+simulation's world coordinates. An upright object resting on the table has z = half its height in the workspace
+frame.
+
+Orientation: exactly one of
+
+* ``quaternion: [w, x, y, z]`` (scalar first, as SAPIEN); its norm must be within 1 % of 1, and it is normalised;
+* ``euler: {convention: C, angles: [a, b, c], degrees: D}``: three rotations, ``angles[k]`` about the axis named by
+  letter ``k`` of ``convention``, in radians, or degrees with ``degrees: true`` (default false). A lowercase
+  convention is extrinsic (about the fixed axes of the frame, applied first letter first), an uppercase one is
+  intrinsic (about the object's axes as they turn); no two consecutive letters may be the same. ``"xyz"`` is
+  roll-pitch-yaw: roll ``a`` about x, then pitch ``b`` about the fixed y, then yaw ``c`` about the fixed z,
+  ``R = Rz(c) @ Ry(b) @ Rx(a)``, the same rotation as intrinsic ``"ZYX"`` with angles ``[c, b, a]``. The conventions
+  are those of scipy's ``Rotation.from_euler``.
+
+``kind: mesh`` (objects from mesh files) is reserved: loading it raises "kind 'mesh' is not supported yet".
+
+Loading (:func:`load_scene`) checks the schema first, with errors that name the file, the object (``objects[i]``)
+and the field, then builds the :class:`~maniskill_pnp.tasks.objects.ObjectSpec` of every entry and runs
+:func:`~maniskill_pnp.tasks.clutter.validate_layout` (bounding boxes inside the workspace, above the table, not
+overlapping). :func:`save_scene` writes a layout; :meth:`ClutterGraspEnv.export_scene
+<maniskill_pnp.tasks.clutter_grasp.ClutterGraspEnv.export_scene>` writes an env's current scene. YAML files accept
+exponents without a dot (``5e-3``), unlike plain YAML 1.1.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import sapien
+import yaml
+
+from maniskill_pnp.tasks.clutter import as_pose, validate_layout
+from maniskill_pnp.tasks.objects import KINDS, SIZE_PARAMS, ObjectSpec
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+#: Version of the schema this module reads and writes (the file's ``format``).
+FORMAT_VERSION = 1
+#: Frames positions can be given in.
+FRAMES = ("workspace", "world")
+#: Extensions of the two syntaxes.
+YAML_SUFFIXES = (".yaml", ".yml")
+JSON_SUFFIXES = (".json",)
+#: Kinds a later change adds; the schema reserves them.
+RESERVED_KINDS = ("mesh",)
+#: Keys of the top level and of an object entry.
+TOP_KEYS = ("format", "frame", "name", "description", "objects")
+OBJECT_KEYS = ("kind", "size", "color", "seed", "position", "quaternion", "euler")
+EULER_KEYS = ("convention", "angles", "degrees")
+#: Decimals written by :func:`save_scene`: positions and colours (1 µm), quaternions and radians, degrees.
+POSITION_DECIMALS, QUATERNION_DECIMALS, DEGREE_DECIMALS = 6, 9, 6
+
+
+class SceneFileError(ValueError):
+    """A scene file that does not follow the schema; the message names the file, the object and the field."""
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """One object of a scene file: its spec and its pose in the file's frame (position, quaternion w, x, y, z)."""
+
+    spec: ObjectSpec
+    position: tuple[float, float, float]
+    quaternion: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A scene file's contents, checked against the schema (not yet against a workspace)."""
+
+    objects: tuple[SceneObject, ...]
+    frame: str
+    name: str | None = None
+    description: str | None = None
+    source: str = "<scene>"
+    """Where it came from (the file's path), for error messages."""
+
+    def layout(self, workspace: WorkspaceSpec) -> list[tuple[ObjectSpec, sapien.Pose]]:
+        """The scene as a layout in ``workspace`` (world poses), validated by
+        :func:`~maniskill_pnp.tasks.clutter.validate_layout`.
+
+        Raises:
+            SceneFileError: the layout does not fit ``workspace`` (the message names the file and the object).
+        """
+        origin = frame_origin(self.frame, workspace)
+        layout = [(o.spec, sapien.Pose(p=np.asarray(o.position) + origin, q=np.asarray(o.quaternion))) for o in self.objects]
+        try:
+            return validate_layout(layout, workspace)
+        except ValueError as e:  # validate_layout's "layout object i" is the file's objects[i]
+            msg = re.sub(r"and (\d+) \(", r"and objects[\1] (", re.sub(r"layout objects? (\d+)", r"objects[\1]", str(e)))
+            raise SceneFileError(f"{self.source}: {msg}") from None
+
+
+# ----------------------------------------------------------------------------- rotations
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternions (w, x, y, z)."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+
+
+def check_convention(convention) -> str:
+    """``convention`` if it is a valid Euler convention (see the module docstring), else a ValueError saying why."""
+    if not (isinstance(convention, str) and len(convention) == 3 and (convention.islower() or convention.isupper())
+            and set(convention.lower()) <= set("xyz") and all(a != b for a, b in zip(convention, convention[1:]))):
+        raise ValueError(
+            f"unknown convention {convention!r}: three axis letters of x, y, z, all lowercase (extrinsic, e.g. 'xyz' "
+            "roll-pitch-yaw) or all uppercase (intrinsic, e.g. 'ZYX'), no two consecutive letters the same"
+        )
+    return convention
+
+
+def euler_to_quat(angles: Sequence[float], convention: str, degrees: bool = False) -> np.ndarray:
+    """Quaternion (w, x, y, z) of Euler ``angles`` in ``convention`` (see the module docstring)."""
+    check_convention(convention)
+    a = np.radians(np.asarray(angles, dtype=np.float64)) if degrees else np.asarray(angles, dtype=np.float64)
+    if a.shape != (3,):
+        raise ValueError(f"euler angles are three numbers, got {angles!r}")
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    for axis, angle in zip(convention.lower(), a):
+        e = np.zeros(4)
+        e[0], e[1 + "xyz".index(axis)] = math.cos(angle / 2), math.sin(angle / 2)
+        # extrinsic: each rotation about the fixed axes comes on the left; intrinsic: about the turned axes, on the right
+        q = _quat_mul(e, q) if convention.islower() else _quat_mul(q, e)
+    return q / np.linalg.norm(q)
+
+
+def quat_to_matrix(q: Sequence[float]) -> np.ndarray:
+    """Rotation matrix of the unit quaternion (w, x, y, z)."""
+    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def quat_to_euler_xyz(q: Sequence[float], degrees: bool = False) -> np.ndarray:
+    """Extrinsic ``"xyz"`` angles (roll, pitch, yaw) of the quaternion (w, x, y, z): pitch in [-90°, 90°], roll and
+    yaw in (-180°, 180°]; at pitch ±90° (gimbal lock) roll is 0."""
+    r = quat_to_matrix(q)
+    cos_pitch = math.hypot(r[0, 0], r[1, 0])
+    pitch = math.atan2(-r[2, 0], cos_pitch)
+    if cos_pitch > 1e-9:
+        roll, yaw = math.atan2(r[2, 1], r[2, 2]), math.atan2(r[1, 0], r[0, 0])
+    else:
+        roll, yaw = 0.0, math.atan2(-r[0, 1], r[1, 1])
+    a = np.array([roll, pitch, yaw])
+    return np.degrees(a) if degrees else a
+
+
+# ----------------------------------------------------------------------------- frames
+def frame_origin(frame: str, workspace: WorkspaceSpec) -> np.ndarray:
+    """World position of the origin of ``frame`` (see :data:`FRAMES`)."""
+    if frame == "workspace":
+        return np.array([*workspace.center, workspace.table_z], dtype=np.float64)
+    if frame == "world":
+        return np.zeros(3)
+    raise ValueError(f"unknown frame {frame!r}; valid: {list(FRAMES)}")
+
+
+# ----------------------------------------------------------------------------- reading
+class _Loader(yaml.SafeLoader):
+    """YAML with exponents without a dot (``5e-3``) read as floats."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _numbers(value, n: int, where: str, what: str) -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)) or len(value) != n or not all(_is_number(v) for v in value):
+        raise SceneFileError(f"{where}: must be {what} ({n} finite numbers), got {value!r}")
+    return tuple(float(v) for v in value)
+
+
+def _check_keys(data: dict, allowed: Sequence[str], where: str) -> None:
+    unknown = [k for k in data if k not in allowed]
+    if unknown:
+        raise SceneFileError(f"{where}: unknown key(s) {unknown}; valid keys: {list(allowed)}")
+
+
+def _orientation(entry: dict, where: str) -> tuple[float, float, float, float]:
+    given = [k for k in ("quaternion", "euler") if k in entry]
+    if len(given) != 1:
+        what = "both" if given else "neither"
+        raise SceneFileError(f"{where}: give exactly one orientation, 'quaternion' or 'euler' (got {what})")
+    if given[0] == "quaternion":
+        q = np.array(_numbers(entry["quaternion"], 4, f"{where}.quaternion", "[w, x, y, z]"))
+        norm = float(np.linalg.norm(q))
+        if abs(norm - 1.0) > 0.01:
+            raise SceneFileError(f"{where}.quaternion: must be a unit quaternion [w, x, y, z], got norm {norm:.4g}")
+        return tuple(float(v) for v in q / norm)
+    euler = entry["euler"]
+    ew = f"{where}.euler"
+    if not isinstance(euler, dict):
+        raise SceneFileError(f"{ew}: must be a mapping {{convention: xyz, angles: [roll, pitch, yaw], degrees: false}}, "
+                             f"got {euler!r}")
+    _check_keys(euler, EULER_KEYS, ew)
+    if "convention" not in euler:
+        raise SceneFileError(f"{ew}.convention: missing; name the convention explicitly (e.g. 'xyz', extrinsic "
+                             "roll-pitch-yaw)")
+    try:
+        convention = check_convention(euler["convention"])
+    except ValueError as e:
+        raise SceneFileError(f"{ew}.convention: {e}") from None
+    if "angles" not in euler:
+        raise SceneFileError(f"{ew}.angles: missing (three angles, in the order of the convention)")
+    angles = _numbers(euler["angles"], 3, f"{ew}.angles", f"three angles in the order of {convention!r}")
+    degrees = euler.get("degrees", False)
+    if not isinstance(degrees, bool):
+        raise SceneFileError(f"{ew}.degrees: must be true or false, got {degrees!r}")
+    return tuple(float(v) for v in euler_to_quat(angles, convention, degrees))
+
+
+def _object(entry, i: int, source: str) -> SceneObject:
+    where = f"{source}: objects[{i}]"
+    if not isinstance(entry, dict):
+        raise SceneFileError(f"{where}: must be a mapping with kind, size, position and an orientation, got {entry!r}")
+    _check_keys(entry, OBJECT_KEYS, where)
+    if "kind" not in entry:
+        raise SceneFileError(f"{where}.kind: missing; valid kinds: {list(KINDS)}")
+    kind = entry["kind"]
+    if kind in RESERVED_KINDS:
+        # Objects from mesh files: a later change reads their fields here and builds their spec.
+        raise SceneFileError(f"{where}.kind: kind {kind!r} is not supported yet; valid kinds: {list(KINDS)}")
+    if kind not in KINDS:
+        raise SceneFileError(f"{where}.kind: unknown kind {kind!r}; valid kinds: {list(KINDS)}")
+    params = SIZE_PARAMS[kind]
+    if "size" not in entry:
+        raise SceneFileError(f"{where}.size: missing; {kind} takes {len(params)} values {list(params)} (metres)")
+    size = entry["size"]
+    if not isinstance(size, (list, tuple)) or len(size) != len(params):
+        got = f"{len(size)} values" if isinstance(size, (list, tuple)) else repr(size)
+        raise SceneFileError(f"{where}.size: {kind} takes {len(params)} values {list(params)} (metres), got {got}")
+    size = _numbers(size, len(params), f"{where}.size", f"{list(params)} in metres")
+    color = ObjectSpec.color if "color" not in entry else _numbers(entry["color"], 3, f"{where}.color", "RGB in 0..1")
+    if not all(0.0 <= c <= 1.0 for c in color):
+        raise SceneFileError(f"{where}.color: must be RGB in 0..1, got {list(color)}")
+    seed = entry.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise SceneFileError(f"{where}.seed: must be an int >= 0, got {seed!r}")
+    if "position" not in entry:
+        raise SceneFileError(f"{where}.position: missing ([x, y, z] in metres)")
+    position = _numbers(entry["position"], 3, f"{where}.position", "[x, y, z] in metres")
+    quaternion = _orientation(entry, where)
+    try:
+        spec = ObjectSpec(kind, size, color, seed)
+    except ValueError as e:
+        raise SceneFileError(f"{where} ({kind}): {e}") from None
+    return SceneObject(spec, position, quaternion)
+
+
+def parse_scene(data, source: str = "<scene>") -> Scene:
+    """A :class:`Scene` from the parsed contents of a scene file (a dict), checked against the schema.
+
+    Raises:
+        SceneFileError: the first problem found, naming ``source``, the object and the field.
+    """
+    if not isinstance(data, dict):
+        raise SceneFileError(f"{source}: a scene file holds a mapping (format, frame, objects, ...), got {type(data).__name__}")
+    _check_keys(data, TOP_KEYS, source)
+    if "format" not in data:
+        raise SceneFileError(f"{source}: format: missing; this version reads format {FORMAT_VERSION}")
+    if isinstance(data["format"], bool) or data["format"] != FORMAT_VERSION:
+        raise SceneFileError(f"{source}: format: unsupported version {data['format']!r}; this version reads format "
+                             f"{FORMAT_VERSION}")
+    frame = data.get("frame")
+    if frame not in FRAMES:
+        raise SceneFileError(f"{source}: frame: {'missing' if frame is None else f'unknown frame {frame!r}'}; valid "
+                             f"frames: {list(FRAMES)}")
+    for key in ("name", "description"):
+        if data.get(key) is not None and not isinstance(data[key], str):
+            raise SceneFileError(f"{source}: {key}: must be text, got {data[key]!r}")
+    objects = data.get("objects")
+    if not isinstance(objects, list) or not objects:
+        raise SceneFileError(f"{source}: objects: must be a non-empty list of objects, got {objects!r}")
+    return Scene(tuple(_object(entry, i, source) for i, entry in enumerate(objects)), frame, data.get("name"),
+                 data.get("description"), source)
+
+
+def _syntax(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix in YAML_SUFFIXES:
+        return "yaml"
+    if suffix in JSON_SUFFIXES:
+        return "json"
+    raise SceneFileError(f"{path}: a scene file ends in {', '.join(YAML_SUFFIXES + JSON_SUFFIXES)}, got {suffix or 'no extension'!r}")
+
+
+def read_scene(path) -> Scene:
+    """The scene file ``path`` read and checked against the schema (not against a workspace: see :meth:`Scene.layout`).
+
+    Raises:
+        FileNotFoundError: no such file.
+        SceneFileError: a bad extension, syntax or schema (the message names the file, the object and the field).
+    """
+    path = Path(path)
+    syntax = _syntax(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"scene file {path} does not exist")
+    text = path.read_text(encoding="utf-8")
+    try:
+        data = json.loads(text) if syntax == "json" else yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader)
+    except (json.JSONDecodeError, yaml.YAMLError) as e:
+        raise SceneFileError(f"{path}: not valid {syntax.upper()}: {e}") from None
+    return parse_scene(data, str(path))
+
+
+def load_scene(path, workspace: WorkspaceSpec) -> list[tuple[ObjectSpec, sapien.Pose]]:
+    """The layout of the scene file ``path`` in ``workspace``: ``(ObjectSpec, world pose)`` per object, validated.
+
+    Raises:
+        FileNotFoundError: no such file.
+        SceneFileError: see :func:`read_scene` and :meth:`Scene.layout`.
+    """
+    return read_scene(path).layout(workspace)
+
+
+# ----------------------------------------------------------------------------- writing
+class _FlowDict(dict):
+    """A mapping written on one line in YAML (an object's ``euler``)."""
+
+
+class _Dumper(yaml.SafeDumper):
+    pass
+
+
+_Dumper.add_representer(_FlowDict, lambda dumper, d: dumper.represent_mapping("tag:yaml.org,2002:map", d, flow_style=True))
+
+
+def _round(values, decimals: int) -> list[float]:
+    return [float(round(float(v), decimals)) + 0.0 for v in values]  # + 0.0: no "-0.0"
+
+
+def scene_data(layout, workspace: WorkspaceSpec, frame: str = "workspace", name: str | None = None,
+               description: str | None = None, orientation: str = "quaternion") -> dict:
+    """The contents of a scene file of ``layout`` (``(ObjectSpec, pose)`` entries, world poses as for
+    :func:`~maniskill_pnp.tasks.clutter.as_pose`), positions in ``frame``.
+
+    Args:
+        orientation: ``"quaternion"`` (exact, w >= 0) or ``"euler"`` (extrinsic ``"xyz"`` in degrees, easy to edit).
+    """
+    if orientation not in ("quaternion", "euler"):
+        raise ValueError(f"orientation must be 'quaternion' or 'euler', got {orientation!r}")
+    origin = frame_origin(frame, workspace)
+    data: dict = dict(format=FORMAT_VERSION, frame=frame)
+    if name is not None:
+        data["name"] = str(name)
+    if description is not None:
+        data["description"] = str(description)
+    objects = []
+    for i, entry in enumerate(layout):
+        if not isinstance(entry, (tuple, list)) or len(entry) != 2 or not isinstance(entry[0], ObjectSpec):
+            raise ValueError(f"layout entry {i} must be (ObjectSpec, pose), got {entry!r}")
+        spec, pose = entry[0], as_pose(entry[1])
+        obj: dict = dict(kind=spec.kind, size=list(spec.size), color=_round(spec.color, POSITION_DECIMALS))
+        if spec.kind == "hull":
+            obj["seed"] = int(spec.seed)
+        obj["position"] = _round(np.asarray(pose.p, dtype=np.float64) - origin, POSITION_DECIMALS)
+        q = np.asarray(pose.q, dtype=np.float64)
+        q = q / np.linalg.norm(q) * (1.0 if q[0] >= 0 else -1.0)
+        if orientation == "quaternion":
+            obj["quaternion"] = _round(q, QUATERNION_DECIMALS)
+        else:
+            obj["euler"] = _FlowDict(convention="xyz", angles=_round(quat_to_euler_xyz(q, degrees=True), DEGREE_DECIMALS),
+                                degrees=True)
+        objects.append(obj)
+    data["objects"] = objects
+    return data
+
+
+def save_scene(path, layout, workspace: WorkspaceSpec, frame: str = "workspace", name: str | None = None,
+               description: str | None = None, orientation: str = "quaternion", validate: bool = True) -> Path:
+    """Write ``layout`` (``(ObjectSpec, world pose)`` entries) as the scene file ``path`` (YAML or JSON by its
+    extension); see :func:`scene_data` for the arguments. Sizes are written exactly; positions and colours to 1 µm,
+    quaternions to 1e-9, Euler angles to 1e-6 degrees.
+
+    Args:
+        validate: First check the layout with :func:`~maniskill_pnp.tasks.clutter.validate_layout`, so no file is
+            written that would not load.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        ValueError: a bad layout, frame, orientation or extension.
+    """
+    path = Path(path)
+    syntax = _syntax(path)
+    if validate:
+        validate_layout(layout, workspace)
+    data = scene_data(layout, workspace, frame, name, description, orientation)
+    if syntax == "json":
+        text = json.dumps(data, indent=2) + "\n"
+    else:
+        header = (f"# maniskill_pnp scene file (format {FORMAT_VERSION}): metres, colours RGB 0..1, quaternion [w, x, y, z],\n"
+                  "# euler convention 'xyz' = extrinsic roll-pitch-yaw.\n")
+        if frame == "workspace":
+            header += "# frame workspace: x, y from the workspace centre, z above the table top.\n"
+        text = header + yaml.dump(data, Dumper=_Dumper, sort_keys=False, default_flow_style=None, width=120)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+__all__ = ["FORMAT_VERSION", "FRAMES", "Scene", "SceneFileError", "SceneObject", "check_convention", "euler_to_quat",
+           "frame_origin", "load_scene", "parse_scene", "quat_to_euler_xyz", "quat_to_matrix", "read_scene", "save_scene",
+           "scene_data"]
