@@ -8,7 +8,9 @@ rendered and fused into the next heightmaps.
 Objects: a pool of procedural objects (:class:`~maniskill_pnp.tasks.clutter_pool.ClutterPool`) is built once,
 with a fixed library seed; each episode draws ``num_objects`` of them, drops them into the workspace and lets them
 settle. Pool objects not in the episode wait on the floor far from the robot and the cameras. With ``layout=`` the
-pool is exactly the layout's objects, placed at its poses every episode.
+pool is exactly the layout's objects, placed at its poses every episode; ``layout_file=`` reads such layouts from
+scene files (:mod:`~maniskill_pnp.tasks.scene_file`), and :meth:`ClutterGraspEnv.export_scene` writes the current
+scene as one.
 
 Batched: with ManiSkill's GPU simulation (``num_envs > 1``) every sub-scene draws its own clutter from the same
 pool, each env's action is decoded into a primitive program of its own arm (:class:`MotionPrimitives` with
@@ -26,8 +28,10 @@ layouts (:meth:`ClutterGraspEnv._resolve_layouts`).
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import sapien
@@ -50,6 +54,7 @@ from maniskill_pnp.tasks.objects import KINDS, ObjectSpec
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 from maniskill_pnp.tasks.primitive_env import Decision, Judgement, PrimitiveStepEnv
 from maniskill_pnp.tasks.registration import register_task
+from maniskill_pnp.tasks.scene_file import load_scene, save_scene
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
 ROBOT_BASE = (-0.615, 0.0, 0.0)
@@ -78,6 +83,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
       density preset name of :data:`~maniskill_pnp.tasks.clutter.DENSITY_PRESETS`)
     - their xy positions and yaws (loosely packed: footprints ``min_gap`` apart) or full poses (any packing),
       then a physics settle
+    - or an explicit layout (``layout=``), or one of the scene files of ``layout_file=`` per episode (a seeded
+      draw unless ``reset(options={"layout_index": k})`` picks one)
 
     **Success Conditions:**
     - the workspace is clear (episode terminates); it is truncated after ``max_consecutive_failures`` failed
@@ -112,6 +119,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         loosely_packed: bool = True,
         min_gap: float = 0.01,
         layout=None,
+        layout_file=None,
         max_consecutive_failures: int = 10,
         max_actions: int | None = None,
         include_camera_data: bool = False,
@@ -120,7 +128,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     ):
         """Args beyond ManiSkill's: ``workspace`` (geometry, cameras, bin), ``num_objects``, ``object_kinds``,
         ``loosely_packed`` and ``min_gap`` (clutter), ``layout`` (explicit list of (ObjectSpec, pose); overrides the
-        random clutter), ``max_consecutive_failures`` and ``max_actions`` (truncation; default 3 × the largest
+        random clutter), ``layout_file`` (a scene file, or a list of them: one layout each, episodes draw among them;
+        not with ``layout``), ``max_consecutive_failures`` and ``max_actions`` (truncation; default 3 × the largest
         object count), ``include_camera_data`` (raw RGB-D and camera parameters in the observation), and the
         motion planner's seed."""
         self.workspace = workspace or WorkspaceSpec()
@@ -139,7 +148,9 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         kwargs.setdefault("obs_mode", "rgb+depth")
         if kwargs["obs_mode"] != "rgb+depth":
             raise ValueError(f"ClutterGrasp-v1 observes RGB-D heightmaps: obs_mode must be 'rgb+depth', got {kwargs['obs_mode']!r}")
-        layouts = self._resolve_layouts(layout)
+        #: The scene files the layouts were read from (empty without ``layout_file``).
+        self.layout_files: tuple[Path, ...] = ()
+        layouts = self._resolve_layouts(layout) if layout_file is None else self._load_layout_files(layout_file, layout)
         num_objects_range = (int(lo), int(hi)) if layouts is None else (min(map(len, layouts)), max(map(len, layouts)))
         n = int(kwargs.get("num_envs", 1))  # ManiSkill's __init__ resets the envs, so the per-env state comes first
         #: The objects: the pool of actors and each env's episode objects.
@@ -343,6 +354,39 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         ClutterGrasp-v1 takes one explicit layout (a list of ``(ObjectSpec, pose)``); subclasses may offer more.
         """
         return None if layout is None else [validate_layout(layout, self.workspace)]
+
+    def _load_layout_files(self, layout_file, layout) -> list[list[tuple[ObjectSpec, sapien.Pose]]]:
+        """The layouts of the scene file(s) ``layout_file`` (one path or a list of them), validated.
+
+        Raises:
+            ValueError: ``layout`` given as well, no file, or a file that does not load (the message names it).
+            FileNotFoundError: a file does not exist.
+        """
+        if layout is not None:
+            raise ValueError("layout= and layout_file= are mutually exclusive: give the layout as a list or as scene files, not both")
+        many = not isinstance(layout_file, (str, os.PathLike)) and hasattr(layout_file, "__iter__")
+        files = list(layout_file) if many else [layout_file]
+        if not files or not all(isinstance(f, (str, os.PathLike)) for f in files):
+            raise ValueError(f"layout_file must be a scene file path or a non-empty list of them, got {layout_file!r}")
+        self.layout_files = tuple(Path(f) for f in files)
+        return [load_scene(f, self.workspace) for f in self.layout_files]
+
+    def export_scene(self, path, env_idx: int = 0, *, frame: str = "workspace", name: str | None = None,
+                     description: str | None = None, orientation: str = "quaternion") -> Path:
+        """Write env ``env_idx``'s objects still in the workspace, at their current poses, as the scene file ``path``
+        (YAML or JSON by its extension; :func:`~maniskill_pnp.tasks.scene_file.save_scene`), to replay it with
+        ``layout_file=``. Objects in the bin or lost are left out. The file is marked ``settled: true`` (the poses of
+        objects at rest: loading checks their centres only, as piled objects' bounding boxes cross); call it between
+        steps or after a reset, when the objects are at rest.
+
+        Raises:
+            ValueError: no object left in the workspace, or a bad env index, frame, orientation or extension.
+        """
+        layout = self.clutter.workspace_layout(int(env_idx))
+        if not layout:
+            raise ValueError(f"env {env_idx} has no object left in the workspace: no scene to export")
+        return save_scene(path, layout, self.workspace, frame=frame, name=name, description=description,
+                          orientation=orientation, settled=True)
 
     def _choose_layout(self, rng: np.random.Generator, options: dict) -> int:
         """This episode's layout: ``reset(options={"layout_index": k})`` when given, else a seeded draw.

@@ -79,6 +79,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
     - or ``layout="complicated"`` (or ``num_objects="complicated"``): one of the hand-designed locking layouts
       of :mod:`~maniskill_pnp.tasks.complicated_layouts` per episode, a seeded draw unless
       ``complicated_index`` (or ``reset(options={"layout_index": k})``) fixes it
+    - or ClutterGrasp-v1's explicit ``layout=`` list, or ``layout_file=`` scene files
 
     **Success Conditions:**
     - the workspace is clear (episode terminates); it is truncated after ``max_consecutive_failures`` failures
@@ -95,6 +96,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         num_objects: int | tuple[int, int] | str = 10,
         loosely_packed: bool = False,
         layout=None,
+        layout_file=None,
         complicated_index: int | None = None,
         reward_scheme: str = "default",
         **kwargs,
@@ -105,7 +107,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         if reward_scheme not in REWARD_SCHEMES:
             raise ValueError(f"unknown reward scheme {reward_scheme!r}; valid schemes: {list(REWARD_SCHEMES)}")
         if num_objects == "complicated" or complicated_index is not None:
-            if layout is not None and not (isinstance(layout, str) and layout == "complicated"):
+            if layout_file is not None or (layout is not None and not (isinstance(layout, str) and layout == "complicated")):
                 raise ValueError("num_objects='complicated' and complicated_index select the hand-designed layouts: pass no other layout")
             layout = "complicated"
         n = len(COMPLICATED_LAYOUT_NAMES)
@@ -115,7 +117,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
             raise ValueError(f"complicated_index must be an int in 0..{n - 1} ({list(COMPLICATED_LAYOUT_NAMES)}), got {complicated_index!r}")
         self.reward_scheme = reward_scheme
         self.complicated_index = None if complicated_index is None else int(complicated_index)
-        super().__init__(*args, num_objects=num_objects, loosely_packed=loosely_packed, layout=layout, **kwargs)
+        super().__init__(*args, num_objects=num_objects, loosely_packed=loosely_packed, layout=layout,
+                         layout_file=layout_file, **kwargs)
 
     @property
     def rewards(self) -> dict[str, float]:

@@ -142,6 +142,18 @@ class ClutterPool:
         """Names of env ``env``'s objects still in the workspace."""
         return [name for name, s in zip(self.active[env], self.status(env)) if s == "workspace"]
 
+    def workspace_layout(self, env: int) -> list[tuple[ObjectSpec, sapien.Pose]]:
+        """Env ``env``'s objects still in the workspace at their current poses: ``(ObjectSpec, world pose)`` each,
+        in the episode's order (what a scene file of the current scene holds)."""
+        if not 0 <= env < self.num_envs:
+            raise ValueError(f"env index must be in 0..{self.num_envs - 1}, got {env!r}")
+        out = []
+        for i, actor, status in zip(self.active_index[env], self.active_actors[env], self.status(env)):
+            if status == "workspace":
+                p, q = (np.asarray(v[env].cpu().numpy(), dtype=np.float64) for v in (actor.pose.p, actor.pose.q))
+                out.append((self.specs[i], sapien.Pose(p=p, q=q / np.linalg.norm(q))))
+        return out
+
     def in_play(self) -> list[int]:
         """Pool indices in some env's episode."""
         return sorted({i for index in self.active_index for i in index})

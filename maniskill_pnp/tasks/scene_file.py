@@ -6,6 +6,7 @@ The file's extension chooses the syntax (``.yaml`` / ``.yml``: YAML, ``.json``: 
     frame: workspace             # "workspace" or "world"; required
     name: two_bars               # optional text
     description: two bars side by side   # optional text
+    settled: false               # optional; true: poses of objects at rest in a simulation (see below)
     objects:                     # one entry per object, at least one
       - kind: cuboid             # one of the procedural kinds of objects.KINDS
         size: [0.02, 0.045, 0.02]    # the kind's size values, metres (objects.SIZE_PARAMS)
@@ -15,7 +16,7 @@ The file's extension chooses the syntax (``.yaml`` / ``.yml``: YAML, ``.json``: 
       - kind: hull
         size: [0.05, 0.04, 0.03]
         seed: 7                  # optional int >= 0: the random points of a hull (ignored by the other kinds)
-        position: [0.03, 0.0, 0.015]
+        position: [0.05, 0.0, 0.015]
         euler: {convention: xyz, angles: [0, 0, 30], degrees: true}
 
 Frames. ``workspace``: x and y from the workspace centre (:attr:`WorkspaceSpec.center`), z above the table top
@@ -39,10 +40,14 @@ Orientation: exactly one of
 
 Loading (:func:`load_scene`) checks the schema first, with errors that name the file, the object (``objects[i]``)
 and the field, then builds the :class:`~maniskill_pnp.tasks.objects.ObjectSpec` of every entry and runs
-:func:`~maniskill_pnp.tasks.clutter.validate_layout` (bounding boxes inside the workspace, above the table, not
-overlapping). :func:`save_scene` writes a layout; :meth:`ClutterGraspEnv.export_scene
-<maniskill_pnp.tasks.clutter_grasp.ClutterGraspEnv.export_scene>` writes an env's current scene. YAML files accept
-exponents without a dot (``5e-3``), unlike plain YAML 1.1.
+:func:`~maniskill_pnp.tasks.clutter.validate_layout`: bounding boxes inside the workspace, above the table, not
+overlapping. That check works on bounding boxes, which tilted or piled objects at rest cross (a sphere's box dips into
+the table when it rolls, objects leaning on each other have overlapping boxes), so a file marked ``settled: true``
+(what :meth:`ClutterGraspEnv.export_scene <maniskill_pnp.tasks.clutter_grasp.ClutterGraspEnv.export_scene>` writes:
+the poses of an env's objects at rest) is only checked for centres in the workspace (over its square, at most 5 cm
+below the table top, as :func:`~maniskill_pnp.tasks.clutter.object_status` counts them); hand-edit such a file with
+care. :func:`save_scene` writes a layout. YAML files accept exponents without a dot (``5e-3``),
+unlike plain YAML 1.1.
 """
 
 from __future__ import annotations
@@ -73,7 +78,7 @@ JSON_SUFFIXES = (".json",)
 #: Kinds a later change adds; the schema reserves them.
 RESERVED_KINDS = ("mesh",)
 #: Keys of the top level and of an object entry.
-TOP_KEYS = ("format", "frame", "name", "description", "objects")
+TOP_KEYS = ("format", "frame", "name", "description", "settled", "objects")
 OBJECT_KEYS = ("kind", "size", "color", "seed", "position", "quaternion", "euler")
 EULER_KEYS = ("convention", "angles", "degrees")
 #: Decimals written by :func:`save_scene`: positions and colours (1 µm), quaternions and radians, degrees.
@@ -101,12 +106,14 @@ class Scene:
     frame: str
     name: str | None = None
     description: str | None = None
+    settled: bool = False
+    """The poses are those of objects at rest in a simulation (checked more loosely, see the module docstring)."""
     source: str = "<scene>"
     """Where it came from (the file's path), for error messages."""
 
     def layout(self, workspace: WorkspaceSpec) -> list[tuple[ObjectSpec, sapien.Pose]]:
         """The scene as a layout in ``workspace`` (world poses), validated by
-        :func:`~maniskill_pnp.tasks.clutter.validate_layout`.
+        :func:`~maniskill_pnp.tasks.clutter.validate_layout` (``settled`` as the file says).
 
         Raises:
             SceneFileError: the layout does not fit ``workspace`` (the message names the file and the object).
@@ -114,7 +121,7 @@ class Scene:
         origin = frame_origin(self.frame, workspace)
         layout = [(o.spec, sapien.Pose(p=np.asarray(o.position) + origin, q=np.asarray(o.quaternion))) for o in self.objects]
         try:
-            return validate_layout(layout, workspace)
+            return validate_layout(layout, workspace, settled=self.settled)
         except ValueError as e:  # validate_layout's "layout object i" is the file's objects[i]
             msg = re.sub(r"and (\d+) \(", r"and objects[\1] (", re.sub(r"layout objects? (\d+)", r"objects[\1]", str(e)))
             raise SceneFileError(f"{self.source}: {msg}") from None
@@ -309,11 +316,14 @@ def parse_scene(data, source: str = "<scene>") -> Scene:
     for key in ("name", "description"):
         if data.get(key) is not None and not isinstance(data[key], str):
             raise SceneFileError(f"{source}: {key}: must be text, got {data[key]!r}")
+    settled = data.get("settled", False)
+    if not isinstance(settled, bool):
+        raise SceneFileError(f"{source}: settled: must be true or false, got {settled!r}")
     objects = data.get("objects")
     if not isinstance(objects, list) or not objects:
         raise SceneFileError(f"{source}: objects: must be a non-empty list of objects, got {objects!r}")
     return Scene(tuple(_object(entry, i, source) for i, entry in enumerate(objects)), frame, data.get("name"),
-                 data.get("description"), source)
+                 data.get("description"), settled, source)
 
 
 def _syntax(path: Path) -> str:
@@ -371,12 +381,13 @@ def _round(values, decimals: int) -> list[float]:
 
 
 def scene_data(layout, workspace: WorkspaceSpec, frame: str = "workspace", name: str | None = None,
-               description: str | None = None, orientation: str = "quaternion") -> dict:
+               description: str | None = None, orientation: str = "quaternion", settled: bool = False) -> dict:
     """The contents of a scene file of ``layout`` (``(ObjectSpec, pose)`` entries, world poses as for
     :func:`~maniskill_pnp.tasks.clutter.as_pose`), positions in ``frame``.
 
     Args:
         orientation: ``"quaternion"`` (exact, w >= 0) or ``"euler"`` (extrinsic ``"xyz"`` in degrees, easy to edit).
+        settled: Mark the file ``settled: true`` (poses of objects at rest in a simulation).
     """
     if orientation not in ("quaternion", "euler"):
         raise ValueError(f"orientation must be 'quaternion' or 'euler', got {orientation!r}")
@@ -386,6 +397,8 @@ def scene_data(layout, workspace: WorkspaceSpec, frame: str = "workspace", name:
         data["name"] = str(name)
     if description is not None:
         data["description"] = str(description)
+    if settled:
+        data["settled"] = True
     objects = []
     for i, entry in enumerate(layout):
         if not isinstance(entry, (tuple, list)) or len(entry) != 2 or not isinstance(entry[0], ObjectSpec):
@@ -408,14 +421,15 @@ def scene_data(layout, workspace: WorkspaceSpec, frame: str = "workspace", name:
 
 
 def save_scene(path, layout, workspace: WorkspaceSpec, frame: str = "workspace", name: str | None = None,
-               description: str | None = None, orientation: str = "quaternion", validate: bool = True) -> Path:
+               description: str | None = None, orientation: str = "quaternion", settled: bool = False,
+               validate: bool = True) -> Path:
     """Write ``layout`` (``(ObjectSpec, world pose)`` entries) as the scene file ``path`` (YAML or JSON by its
     extension); see :func:`scene_data` for the arguments. Sizes are written exactly; positions and colours to 1 µm,
     quaternions to 1e-9, Euler angles to 1e-6 degrees.
 
     Args:
-        validate: First check the layout with :func:`~maniskill_pnp.tasks.clutter.validate_layout`, so no file is
-            written that would not load.
+        validate: First check the layout with :func:`~maniskill_pnp.tasks.clutter.validate_layout` (``settled`` as
+            given), so no file is written that would not load.
 
     Returns:
         ``path``.
@@ -426,8 +440,8 @@ def save_scene(path, layout, workspace: WorkspaceSpec, frame: str = "workspace",
     path = Path(path)
     syntax = _syntax(path)
     if validate:
-        validate_layout(layout, workspace)
-    data = scene_data(layout, workspace, frame, name, description, orientation)
+        validate_layout(layout, workspace, settled=settled)
+    data = scene_data(layout, workspace, frame, name, description, orientation, settled)
     if syntax == "json":
         text = json.dumps(data, indent=2) + "\n"
     else:

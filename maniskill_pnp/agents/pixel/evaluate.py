@@ -14,7 +14,11 @@ the argmax unchanged, so one failing action can repeat until the failure limit e
 Scenarios (``scenarios``, one table row each, like the thesis' Table IX): ``"train"`` (the checkpoint's object
 count), an object count such as ``"10"``, a density preset of the task (``"min"``, ``"medium"``, ``"max"``) or
 ``"complicated"`` (ClutterGraspSlide-v1's hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset);
-see :data:`~maniskill_pnp.agents.pixel.factories.SCENARIOS`.
+see :data:`~maniskill_pnp.agents.pixel.factories.SCENARIOS`. Scene files of the user's own arrangements
+(``layout_file``, :mod:`~maniskill_pnp.tasks.scene_file`) are one more scenario, after those: its row is named
+after the files' stems (joined by ``+``), and episode ``i`` is played on file ``i mod (number of files)`` (seed
+``seed + i``); the file of each episode is in its ``layout`` column. Without ``scenarios``, ``"train"`` is
+evaluated, or only the layout files when there are some.
 
 Metrics (``docs/metrics.md``, computed from the env's ``info`` of every step):
 
@@ -31,7 +35,7 @@ episode), and ``q_heatmaps.png``: the colour and depth heightmaps of the first s
 Q map of every primitive and rotation (one colour scale; the chosen action marked), as in the thesis' Fig. 22.
 
 Run it with ``maniskill-pnp eval-clutter runs/clutter/<run folder> --episodes 10`` (G&S, Table IX:
-``--scenarios min medium max complicated``).
+``--scenarios min medium max complicated``; your own arrangements: ``--layout-file my_scene.yaml``).
 """
 
 from __future__ import annotations
@@ -58,6 +62,7 @@ from maniskill_pnp.agents.pixel.policy import GreedyPixelActor
 from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
 from maniskill_pnp.runtime import resolve_device
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+from maniskill_pnp.tasks.scene_file import read_scene
 
 #: Longest run of consecutive failed grasps a completed episode may contain (VPG's completion criterion).
 MAX_FAILURE_RUN = 10
@@ -65,7 +70,7 @@ MAX_FAILURE_RUN = 10
 METRICS = ("success_rate", "grasp_success", "completion", "action_efficiency")
 #: Columns of the per-episode table.
 EPISODE_COLUMNS = ("scenario", "seed", "objects", "actions", "grasp_attempts", "grasps", "placed", "lost", "cleared",
-                   "max_failure_run", "success_rate", "grasp_success")
+                   "max_failure_run", "success_rate", "grasp_success", "layout")
 #: Columns of the per-scenario table (Table IX).
 SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS)
 
@@ -84,8 +89,12 @@ class ClutterEvalConfig:
     """Seed of the first scene; the default keeps the test scenes apart from the small seeds used in training."""
     max_steps: int | None = None
     """Cap on actions per episode (an episode cut by it is not completed); None: only the task's own limits."""
-    scenarios: tuple[str, ...] = ("train",)
-    """Scenes to evaluate, one table row each: "train", an object count, "min", "medium", "max" or "complicated"."""
+    scenarios: tuple[str, ...] = ()
+    """Scenes to evaluate, one table row each: "train", an object count, "min", "medium", "max" or "complicated";
+    none: "train", or only the layout files when some are given."""
+    layout_file: tuple[Path, ...] = ()
+    """Scene files (YAML or JSON) of your own arrangements: one more table row, named after the file stems; episode
+    i is played on file i mod the number of files."""
     grasp_only: bool = False
     """Mask out every primitive but grasps (a G&S agent evaluated as a grasp-only agent)."""
     avoid_repeats: bool = False
@@ -101,13 +110,21 @@ class ClutterEvalConfig:
         object.__setattr__(self, "checkpoint", Path(self.checkpoint))
         object.__setattr__(self, "out", Path(self.out))
         object.__setattr__(self, "scenarios", tuple(str(x) for x in self.scenarios))
-        if not self.scenarios:
-            raise ValueError("scenarios must name at least one scenario (e.g. 'train' or 'medium')")
+        object.__setattr__(self, "layout_file", tuple(Path(p) for p in self.layout_file))
+        if not self.scenarios and not self.layout_file:
+            object.__setattr__(self, "scenarios", ("train",))
+        for path in self.layout_file:  # schema errors before any env is made (the workspace is checked then)
+            read_scene(path)
+        if self.layout_file and self.layout_scenario in self.scenarios:
+            raise ValueError(f"the layout files' row {self.layout_scenario!r} has the name of a scenario: rename the file")
         bad = [x for x in self.scenarios if not is_scenario(x)]
         if bad:
             raise ValueError(f"unknown scenarios {bad}; valid: a positive object count or one of {list(SCENARIOS)}")
         if self.episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.episodes < len(self.layout_file):
+            raise ValueError(f"episodes ({self.episodes}) must be at least the number of layout files "
+                             f"({len(self.layout_file)}), so that every file is played")
         if self.num_objects is not None and self.num_objects < 1:
             raise ValueError(f"num_objects must be >= 1 (or None for the checkpoint's value), got {self.num_objects}")
         if self.max_steps is not None and self.max_steps < 1:
@@ -125,9 +142,14 @@ class ClutterEvalConfig:
         """The checkpoint file (``checkpoint.pt`` inside ``checkpoint`` when that is a folder)."""
         return checkpoint_file(self.checkpoint)
 
+    @property
+    def layout_scenario(self) -> str:
+        """Name of the layout files' table row: their stems joined by "+" ("" without layout files)."""
+        return "+".join(p.stem for p in self.layout_file)
+
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
-        d.update(checkpoint=str(self.checkpoint), out=str(self.out))
+        d.update(checkpoint=str(self.checkpoint), out=str(self.out), layout_file=[str(p) for p in self.layout_file])
         return d
 
 
@@ -186,17 +208,21 @@ class EpisodeTally:
 
 
 def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, max_steps: int | None,
-                on_step=None, scenario: str = "train", avoid_repeats: bool = False) -> tuple[dict, dict]:
+                on_step=None, scenario: str = "train", avoid_repeats: bool = False, layout_index: int | None = None,
+                layout: str = "") -> tuple[dict, dict]:
     """One greedy episode of the gymnasium env ``env`` from ``reset(seed=seed)``.
 
     Args:
         on_step: Called with the step's ``info`` after every action (the progress bar's hook).
         avoid_repeats: Mask out the actions that failed since the last success (see :class:`ClutterEvalConfig`).
+        layout_index: The env's explicit layout to play (``reset(options={"layout_index": k})``); None: the env's own
+            choice.
+        layout: The record's ``layout`` (the name of that layout).
 
     Returns:
         The episode record (``EPISODE_COLUMNS``) and the first decision: ``{"color", "depth", "maps", "action"}``.
     """
-    obs, info = env.reset(seed=seed)
+    obs, info = env.reset(seed=seed, options=None if layout_index is None else {"layout_index": layout_index})
     objects = int(info["num_objects"])
     tally = EpisodeTally(env.unwrapped.primitive_names)
     first = None
@@ -221,7 +247,7 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         scenario=scenario, seed=seed, objects=objects, actions=t.actions, grasp_attempts=t.grasp_attempts, grasps=t.grasps,
         placed=t.placed, lost=int(info["lost_objects"]), cleared=bool(info["success"].item()),
         max_failure_run=t.max_failure_run, success_rate=t.placed / t.actions,
-        grasp_success=t.grasps / t.grasp_attempts if t.grasp_attempts else 0.0,
+        grasp_success=t.grasps / t.grasp_attempts if t.grasp_attempts else 0.0, layout=layout,
     )
     return record, first
 
@@ -322,22 +348,28 @@ def run(cfg: ClutterEvalConfig) -> dict:
     t0 = time.perf_counter()
     episodes, rows, first = [], [], None
     outcomes = []
-    with tqdm(total=cfg.episodes * len(cfg.scenarios), desc=f"eval {train_cfg.run_name}", unit="episode") as bar:
+    # (row name, make_env arguments, names of the layout files: episode i plays file i mod their number)
+    plans = [(scenario, dict(scenario=scenario), None) for scenario in cfg.scenarios]
+    if cfg.layout_file:
+        plans.append((cfg.layout_scenario, dict(scenario="train", layout_file=[str(p) for p in cfg.layout_file]),
+                      [p.stem for p in cfg.layout_file]))
+    with tqdm(total=cfg.episodes * len(plans), desc=f"eval {train_cfg.run_name}", unit="episode") as bar:
 
         def on_step(info):
             if is_grasp_attempt(primitives, int(info["primitive_index"])):
                 outcomes.append(bool(info["grasp_success"]))
             bar.set_postfix(grasp=f"{sum(outcomes) / max(1, len(outcomes)):.2f}", attempts=len(outcomes))
 
-        for scenario in cfg.scenarios:
+        for scenario, env_args, layouts in plans:
             bar.set_description(f"eval {scenario}")
-            torchrl_env = make_env(env_cfg, scenario)
+            torchrl_env = make_env(env_cfg, **env_args)
             env = torchrl_env.maniskill_env  # the gymnasium env underneath: its per-step info holds the outcome
             try:
                 scenario_episodes = []
                 for i in range(cfg.episodes):
+                    k = None if layouts is None else i % len(layouts)
                     record, decision = run_episode(env, actor, cfg.seed + i, device, cfg.max_steps, on_step, scenario,
-                                                   cfg.avoid_repeats)
+                                                   cfg.avoid_repeats, k, "" if k is None else layouts[k])
                     scenario_episodes.append(record)
                     first = first or decision
                     bar.update()

@@ -8,7 +8,7 @@ action drawn on the heightmap and its outcome. Grasps are drawn as the jaw line 
 slides as an arrow of the slide's length.
 
 Run it with ``maniskill-pnp record-clutter runs/clutter/<run folder>`` (``--scenario complicated`` for a locking
-layout of ClutterGraspSlide-v1).
+layout of ClutterGraspSlide-v1, ``--layout-file my_scene.yaml`` for your own arrangement).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_po
 from maniskill_pnp.agents.run_io import require_positive, write_json
 from maniskill_pnp.agents.video_frames import even_frame, label
 from maniskill_pnp.runtime import resolve_device
+from maniskill_pnp.tasks.scene_file import read_scene
 
 #: Side (px) of each heightmap / Q-map panel in the video and the strip.
 PANEL = 256
@@ -43,6 +44,8 @@ class ClutterVideoConfig:
     """checkpoint.pt of a clutter DQN run (train-clutter), or the run folder that holds it."""
     scenario: str = "train"
     """Scene: "train" (the checkpoint's object count), an object count, "min", "medium", "max" or "complicated"."""
+    layout_file: Path | None = None
+    """Scene file (YAML or JSON) of your own arrangement to film instead of a scenario."""
     seed: int = 1000
     """Seed of the scene."""
     max_steps: int = 10
@@ -64,6 +67,11 @@ class ClutterVideoConfig:
         object.__setattr__(self, "scenario", str(self.scenario))
         if not is_scenario(self.scenario):
             raise ValueError(f"unknown scenario {self.scenario!r}; valid: a positive object count or one of {list(SCENARIOS)}")
+        if self.layout_file is not None:
+            object.__setattr__(self, "layout_file", Path(self.layout_file))
+            if self.scenario != "train":
+                raise ValueError(f"give a scenario ({self.scenario!r}) or a layout_file, not both")
+            read_scene(self.layout_file)  # schema errors before any env is made (the workspace is checked then)
         require_positive(self, ("max_steps", "frame_every", "fps"))
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
@@ -191,7 +199,8 @@ def run(cfg: ClutterVideoConfig) -> dict:
 
     device = resolve_device(cfg.device)
     actor, train_cfg, counters = load_policy(cfg.checkpoint_path, device, grasp_only=cfg.grasp_only)
-    torchrl_env = make_env(train_cfg, cfg.scenario, render_mode="rgb_array")
+    scene = {} if cfg.layout_file is None else dict(layout_file=str(cfg.layout_file))
+    torchrl_env = make_env(train_cfg, cfg.scenario, render_mode="rgb_array", **scene)
     env = torchrl_env.maniskill_env
     size = train_cfg.heightmap_size
     frames: list[np.ndarray] = []
@@ -235,7 +244,9 @@ def run(cfg: ClutterVideoConfig) -> dict:
     iio.imwrite(video, np.stack([even_frame(f) for f in frames]), fps=cfg.fps, codec="libx264")
     strip = decisions_strip(decisions, size, out / "decisions.png")
     summary = dict(
-        checkpoint=str(cfg.checkpoint_path), scenario=cfg.scenario, seed=cfg.seed, objects=objects, decisions=records,
+        checkpoint=str(cfg.checkpoint_path), scenario=cfg.scenario if cfg.layout_file is None else cfg.layout_file.stem,
+        layout_file=None if cfg.layout_file is None else str(cfg.layout_file), seed=cfg.seed, objects=objects,
+        decisions=records,
         placed=sum(r["place_success"] for r in records), cleared=bool(info["objects_remaining"] == 0), frames=len(frames),
         train_counters=counters, config={k: str(v) for k, v in dataclasses.asdict(cfg).items()},
         files=dict(video=str(video), strip=str(strip), summary=str(out / "video_summary.json")),
