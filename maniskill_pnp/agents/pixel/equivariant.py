@@ -71,6 +71,8 @@ from e2cnn import gspaces
 from e2cnn import nn as enn
 from torch import nn
 
+from maniskill_pnp.agents.pixel.fcn import rotation_query
+
 #: ImageNet statistics, used to normalise the colour channels (as for the other backbones).
 _RGB_MEAN = (0.485, 0.456, 0.406)
 _RGB_STD = (0.229, 0.224, 0.225)
@@ -242,11 +244,7 @@ class EquivariantPixelQNetwork(nn.Module):
         channels are gathered).
         """
         self._check(heightmaps)
-        rotation = rotation.reshape(-1).long()
-        if rotation.shape[0] != heightmaps.shape[0] or heightmaps.ndim != 4:
-            raise ValueError(f"need heightmaps (N, 4, H, W) and N rotations, got {tuple(heightmaps.shape)}, {tuple(rotation.shape)}")
-        if rotation.numel() and (int(rotation.min()) < 0 or int(rotation.max()) >= self.num_rotations):
-            raise ValueError(f"rotation index out of range 0..{self.num_rotations - 1}")
+        rotation = rotation_query(heightmaps, rotation, self.num_rotations)
         out = self.fields_of(heightmaps)
         return out[torch.arange(out.shape[0], device=out.device), self.channel[rotation]]
 

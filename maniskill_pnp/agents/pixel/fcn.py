@@ -155,6 +155,20 @@ def rotate_images(images: torch.Tensor, angles: torch.Tensor, mode: str = "bilin
     return F.grid_sample(images, grid, mode=mode, padding_mode="zeros", align_corners=False)
 
 
+def rotation_query(heightmaps: torch.Tensor, rotation: torch.Tensor, num_rotations: int) -> torch.Tensor:
+    """The rotation indices of a ``rotation_maps`` query as a flat int64 tensor, one per heightmap.
+
+    Raises:
+        ValueError: heightmaps are not ``(N, 4, H, W)`` with ``N`` rotations, or an index is outside ``0..R-1``.
+    """
+    rotation = rotation.reshape(-1).long()
+    if rotation.shape[0] != heightmaps.shape[0] or heightmaps.ndim != 4:
+        raise ValueError(f"need heightmaps (N, 4, H, W) and N rotations, got {tuple(heightmaps.shape)}, {tuple(rotation.shape)}")
+    if rotation.numel() and (int(rotation.min()) < 0 or int(rotation.max()) >= num_rotations):
+        raise ValueError(f"rotation index out of range 0..{num_rotations - 1}")
+    return rotation
+
+
 def padded_size(height: int, width: int, multiple: int) -> int:
     """Side of the square that holds an ``height x width`` image under any rotation.
 
@@ -292,11 +306,7 @@ class PixelQNetwork(nn.Module):
         mode BatchNorm sees a batch of ``N`` images instead of ``N * R``.
         """
         self._check(heightmaps)
-        rotation = rotation.reshape(-1).long()
-        if rotation.shape[0] != heightmaps.shape[0] or heightmaps.ndim != 4:
-            raise ValueError(f"need heightmaps (N, 4, H, W) and N rotations, got {tuple(heightmaps.shape)}, {tuple(rotation.shape)}")
-        if rotation.numel() and (int(rotation.min()) < 0 or int(rotation.max()) >= self.num_rotations):
-            raise ValueError(f"rotation index out of range 0..{self.num_rotations - 1}")
+        rotation = rotation_query(heightmaps, rotation, self.num_rotations)
         return self._maps_at(heightmaps, self.angles[rotation])
 
 
