@@ -19,7 +19,7 @@ from typing import Any
 import gymnasium as gym
 from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
 
-from maniskill_pnp.runtime import default_backends
+from maniskill_pnp.runtime import with_default_backends
 
 
 class GymEnv(CPUGymWrapper, gym.utils.RecordConstructorArgs):
@@ -35,6 +35,4 @@ def make_gym_env(env_id: str, **make_kwargs: Any) -> GymEnv:
     not given default to :func:`maniskill_pnp.runtime.default_backends`)."""
     if make_kwargs.get("num_envs", 1) != 1:
         raise ValueError(f"a gymnasium env runs one env; got num_envs={make_kwargs['num_envs']} (use make_torchrl_env for batches)")
-    for key, value in default_backends(1).items():
-        make_kwargs.setdefault(key, value)
-    return GymEnv(gym.make(env_id, **make_kwargs))
+    return GymEnv(gym.make(env_id, **with_default_backends(make_kwargs)))

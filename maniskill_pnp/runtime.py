@@ -23,3 +23,9 @@ def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)
+
+
+def with_default_backends(make_kwargs: dict) -> dict:
+    """``gym.make`` keyword arguments with the :func:`default_backends` of their ``num_envs`` for the backends not
+    given."""
+    return {**default_backends(make_kwargs.get("num_envs", 1)), **make_kwargs}

@@ -55,7 +55,7 @@ from torchrl.data import (
 )
 from torchrl.envs import EnvBase
 
-from maniskill_pnp.runtime import default_backends
+from maniskill_pnp.runtime import with_default_backends
 from maniskill_pnp.tasks.primitive_env import OUTCOME_KEYS
 
 __all__ = [
@@ -521,8 +521,7 @@ def make_torchrl_env(
     requested = None if device is None else torch.device(device)
     if requested is not None:
         make_kwargs.setdefault("sim_backend", _sim_backend_for(requested))
-    for key, value in default_backends(make_kwargs.get("num_envs", 1)).items():
-        make_kwargs.setdefault(key, value)
+    make_kwargs = with_default_backends(make_kwargs)
     env = gym.make(env_id, **make_kwargs)
     wrapped = ManiSkillTorchRLEnv(env, info_keys=info_keys)
     actual = wrapped.device

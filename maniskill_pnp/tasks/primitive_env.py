@@ -59,6 +59,11 @@ def batch_infos(infos: list[dict], device) -> dict:
     return out
 
 
+def _as_numpy(x) -> np.ndarray:
+    """A numpy view of an action or mask given as a torch tensor (any device), numpy array, list or scalar."""
+    return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
+
+
 def parse_discrete_action(action, n: int, valid: str) -> int:
     """One integer index in ``0..n-1`` from an int, numpy or torch scalar (or shape-(1,) array).
 
@@ -66,7 +71,7 @@ def parse_discrete_action(action, n: int, valid: str) -> int:
         ValueError: naming ``valid`` (what a valid action is) for a wrong shape, a non-integer dtype (float, NaN,
             bool) or an index out of range; raised before anything moves.
     """
-    a = action.detach().cpu().numpy() if isinstance(action, torch.Tensor) else np.asarray(action)
+    a = _as_numpy(action)
     if a.size != 1 or a.ndim > 1:
         raise ValueError(f"action must be {valid} (shape () or (1,)), got shape {a.shape}")
     a = a.reshape(())
@@ -87,7 +92,7 @@ def parse_discrete_actions(action, num_envs: int, n: int, valid: str) -> list[in
     """
     if num_envs == 1:
         return [parse_discrete_action(action, n, valid)]
-    a = action.detach().cpu().numpy() if isinstance(action, torch.Tensor) else np.asarray(action)
+    a = _as_numpy(action)
     if a.shape not in ((num_envs,), (num_envs, 1)):
         raise ValueError(f"action must be one index per env, shape ({num_envs},), each {valid}; got shape {a.shape}")
     if a.dtype == np.bool_ or not np.issubdtype(a.dtype, np.integer):
@@ -108,7 +113,7 @@ class MaskableDiscrete(spaces.Discrete):
 
     def sample(self, mask=None, probability=None):
         if mask is not None:
-            m = mask.detach().cpu().numpy() if isinstance(mask, torch.Tensor) else np.asarray(mask)
+            m = _as_numpy(mask)
             if m.ndim == 2 and m.shape[0] == 1:
                 m = m[0]
             mask = m.astype(np.int8)
