@@ -209,6 +209,23 @@ def test_eval_mode_follows_the_weights_and_the_state_dict_round_trips():
             torch.testing.assert_close(clone(x), before)
 
 
+def test_parameters_swap_in_as_meta_copies_as_a_collector_worker_does():
+    """TorchRL's weight sync swaps the policy's parameters into a worker's copy with ``TensorDict.to_module``, meta
+    copies included. e2cnn's basis expansions of two layers with equal field types hash alike and compare by content
+    (which raises on meta tensors); the network's expansions compare by identity, so the swap goes through."""
+    torch.manual_seed(8)
+    net = MultiPrimitiveQNetwork(GS, num_rotations=R, backbone="equivariant").eval()
+    x = heightmaps(1, 11)
+    params = TensorDict.from_module(net)
+    with torch.no_grad():
+        before = net(x)
+        with params.to("meta").to_module(net):
+            pass
+        with params.apply(torch.zeros_like).to_module(net):
+            assert not torch.allclose(net(x), before)
+        torch.testing.assert_close(net(x), before)
+
+
 # ---------------------------------------------------------------------------------------------------- loss and replay
 @pytest.mark.parametrize("primitives", [GS[:1], GS])
 def test_executed_values_equal_the_full_maps(primitives):

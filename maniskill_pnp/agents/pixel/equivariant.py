@@ -69,6 +69,8 @@ import torch
 import torch.nn.functional as F
 from e2cnn import gspaces
 from e2cnn import nn as enn
+from e2cnn.nn.modules.r2_conv.basisexpansion_blocks import BlocksBasisExpansion
+from e2cnn.nn.modules.r2_conv.basisexpansion_singleblock import SingleBlockBasisExpansion
 from torch import nn
 
 from maniskill_pnp.agents.pixel.fcn import rotation_query
@@ -107,6 +109,30 @@ class _SteerableConv(enn.R2Conv):
         out = F.conv2d(input.tensor, weight, bias, stride=self.stride, padding=self.padding, dilation=self.dilation,
                        groups=self.groups)
         return enn.GeometricTensor(out, self.out_type)
+
+
+class _BlocksExpansion(BlocksBasisExpansion):
+    """e2cnn's expansion of a filter from its weights, compared by identity.
+
+    e2cnn compares basis expansions by content (``torch.allclose`` of their sampled bases) and hashes them by their
+    shared sub-blocks, so the expansions of two layers with the same field types hash alike. TensorDict's
+    ``to_module`` (TorchRL's weight sync to collector workers) keys a memo by each submodule: equal hashes make it
+    compare two expansions, which on its meta-device copies raises. As submodules of a network they are distinct
+    objects, so identity is the right equality here.
+    """
+
+    __eq__ = object.__eq__
+    __hash__ = object.__hash__
+
+
+class _SingleBlockExpansion(SingleBlockBasisExpansion):
+    """One block of :class:`_BlocksExpansion`, compared by identity for the same reason."""
+
+    __eq__ = object.__eq__
+    __hash__ = object.__hash__
+
+
+_IDENTITY_EQUAL = {BlocksBasisExpansion: _BlocksExpansion, SingleBlockBasisExpansion: _SingleBlockExpansion}
 
 
 def _conv_block(in_type: enn.FieldType, out_type: enn.FieldType, kernel_size: int) -> enn.SequentialModule:
@@ -199,6 +225,8 @@ class EquivariantPixelQNetwork(nn.Module):
         for module in self.modules():
             if module is not self:
                 module._non_persistent_buffers_set.update(set(module._buffers) - _STATEFUL_BUFFERS)
+            if type(module) in _IDENTITY_EQUAL:
+                module.__class__ = _IDENTITY_EQUAL[type(module)]
 
     def __reduce__(self):
         """Pickle as constructor arguments + ``state_dict`` (e2cnn's group objects hold lambdas, which the standard
