@@ -61,6 +61,15 @@ def _bench(args) -> None:
         except ValueError as e:
             raise SystemExit(f"bench soak: {e}") from e
         run_soak(cfg)
+    elif args.which == "training-throughput":
+        from maniskill_pnp.bench.training_throughput import TrainingThroughputBenchConfig, run as run_throughput
+
+        try:
+            given = _config_values(args, TrainingThroughputBenchConfig, only=THROUGHPUT_BENCH_OPTIONS, given_only=True)
+            cfg = TrainingThroughputBenchConfig(**given, out=args.out / "training_throughput.json")
+        except ValueError as e:
+            raise SystemExit(f"bench training-throughput: {e}") from e
+        run_throughput(cfg)
     else:
         _bench_scale(args)
 
@@ -99,6 +108,9 @@ def _bench_scale(args) -> None:
 #: soak's too).
 PIXEL_BENCH_OPTIONS = ("backbone", "num_rotations", "heightmap_size", "num_primitives", "repeats", "warmup", "device",
                        "threads", "max_rss_gb")
+
+#: The options of ``bench training-throughput`` (fields of its config).
+THROUGHPUT_BENCH_OPTIONS = ("variants", "minutes", "repeats", "updates_per_step")
 
 
 def _bench_pixel_dqn(args) -> None:
@@ -319,7 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="run a benchmark; prints numbers and writes JSON")
     bench.add_argument(
         "which", choices=["primitives", "clutter-oracle", "conveyor", "pixel-memory", "decision-cost", "soak",
-                          "env-overhead", "collection", "decision-breakdown", "batched-decisions"],
+                          "env-overhead", "collection", "decision-breakdown", "batched-decisions", "training-throughput"],
         help="primitives: pick-and-place success, planning and wall time; "
         "clutter-oracle: ClutterGrasp-v1 cleared by the scripted heightmap oracle (10 objects, --episodes scenes); "
         "conveyor: train Q-learning and SARSA with the default config, then the random test cases; "
@@ -331,7 +343,8 @@ def build_parser() -> argparse.ArgumentParser:
         "collection: transitions/s of --task with each of --workers env processes; decision-breakdown: render, "
         "heightmap, network, planning and execution time of --actions greedy decisions of --preset; "
         "batched-decisions: decisions/s of --preset's task on the GPU simulation with each of --num-envs envs "
-        "(--actions timed steps each) / the one-env CPU path",
+        "(--actions timed steps each) / the one-env CPU path; training-throughput: training actions per hour of each of "
+        "--variants (PRESET[,FIELD=VALUE...]), trained in turn for --minutes each, ratios against the first",
     )
     bench.add_argument("--episodes", type=int, default=20, help="seeded episodes (primitives) or scenes (clutter-oracle) (default: %(default)s)")
     bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="folder for the JSON report (default: %(default)s)")
@@ -353,10 +366,12 @@ def build_parser() -> argparse.ArgumentParser:
     from maniskill_pnp.agents.pixel.config import CHOICES as CLUTTER_CHOICES, ClutterConfig, presets
     from maniskill_pnp.bench.pixel_dqn import DecisionCostBenchConfig, PixelMemoryBenchConfig
     from maniskill_pnp.bench.soak import SoakBenchConfig
+    from maniskill_pnp.bench.training_throughput import TrainingThroughputBenchConfig
 
     add_config_options(bench, {"pixel-memory": PixelMemoryBenchConfig, "decision-cost": DecisionCostBenchConfig,
-                               "soak": SoakBenchConfig},
-                       only={"pixel-memory": PIXEL_BENCH_OPTIONS, "decision-cost": PIXEL_BENCH_OPTIONS, "soak": ("warmup",)},
+                               "soak": SoakBenchConfig, "training-throughput": TrainingThroughputBenchConfig},
+                       only={"pixel-memory": PIXEL_BENCH_OPTIONS, "decision-cost": PIXEL_BENCH_OPTIONS, "soak": ("warmup",),
+                             "training-throughput": THROUGHPUT_BENCH_OPTIONS},
                        flags=dict(num_rotations="rotations"), choices=dict(backbone=CLUTTER_CHOICES["backbone"]), unset=True)
     bench.set_defaults(func=_bench)
 

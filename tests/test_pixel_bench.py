@@ -15,6 +15,7 @@ from maniskill_pnp.bench.pixel_dqn import (
     run_pixel_memory,
     set_memory_efficient,
 )
+from maniskill_pnp.bench.training_throughput import TrainingThroughputBenchConfig, run as run_throughput
 from maniskill_pnp.cli import main as cli
 
 
@@ -55,7 +56,28 @@ def test_decision_cost_tiny(tmp_path, capsys):
     (["bench", "pixel-memory", "--backbone", "small"], "densenet121"),
     (["bench", "decision-cost", "--num-primitives", "4"], "num_primitives"),
     (["bench", "decision-cost", "--repeats", "0"], "repeats"),
+    (["bench", "training-throughput", "--variants", "gs-cpu-tiny"], "unknown preset 'gs-cpu-tiny'"),
+    (["bench", "training-throughput", "--variants", "cpu-equi,num_rotations"], "is not FIELD=VALUE"),
+    (["bench", "training-throughput", "--variants", "cpu-equi,num_rotations=eight"], "num_rotations"),
+    (["bench", "training-throughput", "--variants", "cpu-equi,learning_rate=0.1"], "unknown config fields"),
+    (["bench", "training-throughput", "--minutes", "0"], "minutes"),
 ])
 def test_bad_bench_options_are_clear_errors(argv, message, tmp_path):
     with pytest.raises(SystemExit, match=message):
         cli([*argv, "--out", str(tmp_path)])
+
+
+def test_training_throughput_trains_each_variant_in_turn(tmp_path, capsys):
+    """Two tiny variants (one with a process collector whose worker steps the simulator beside the learner), each
+    trained for real for a few seconds: actions, updates per action as configured, a rate and the ratio table."""
+    tiny = "num_objects=2,heightmap_size=32,num_rotations=4,checkpoint_interval=1000"
+    variants = (f"cpu-small,{tiny}", f"cpu-equi,{tiny},collector=process,sync=false")
+    out = tmp_path / "throughput.json"
+    run_throughput(TrainingThroughputBenchConfig(variants=variants, minutes=0.1, updates_per_step=1, out=out))
+    results = json.loads(out.read_text())["results"]
+    for spec in variants:
+        (turn,) = results[spec]["turns"]
+        assert turn["actions"] >= 1 and turn["updates"] == turn["actions"]
+        assert results[spec]["actions_per_hour"] > 0 and turn["startup_s"] > 0
+    assert results[variants[0]]["ratio"] == 1.0
+    assert "actions/h" in capsys.readouterr().out
