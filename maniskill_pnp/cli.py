@@ -180,6 +180,20 @@ def _eval_clutter(args) -> None:
     print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
 
 
+def _compare_clutter(args) -> None:
+    from maniskill_pnp.agents.pixel.evaluate import comparison_table
+
+    try:
+        table = comparison_table(args.eval_a, args.eval_b)
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"compare-clutter: {e}") from e
+    print(table)
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(table + "\n")
+        print(f"wrote {args.out}")
+
+
 def _plot_clutter(args) -> None:
     from maniskill_pnp.agents.pixel.curves import plot_training_curves
 
@@ -408,6 +422,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_config_options(evc, ClutterEvalConfig)
     evc.set_defaults(func=_eval_clutter)
+
+    cmp = sub.add_parser("compare-clutter", help="paired per-scene differences of two eval-clutter runs on the same "
+                         "scenes (e.g. a G&S agent against its --grasp-only restriction): A - B of every metric, ± its "
+                         "standard error, per scenario")
+    cmp.add_argument("eval_a", type=Path, help="eval-clutter output folder (or its eval_summary.json) of A")
+    cmp.add_argument("eval_b", type=Path, help="eval-clutter output folder (or its eval_summary.json) of B")
+    cmp.add_argument("--out", type=Path, default=None, help="also write the Markdown table to this file")
+    cmp.set_defaults(func=_compare_clutter)
 
     rec = sub.add_parser("record-clutter", help="film one greedy episode of a clutter DQN checkpoint: MP4 of the arm's "
                          "motion beside each decision, and a strip of heightmap -> Q map -> action per decision")

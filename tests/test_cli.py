@@ -32,7 +32,7 @@ import torch
 
 from maniskill_pnp.agents.pixel.checkpoint import CHECKPOINT_FORMAT
 from maniskill_pnp.agents.pixel.config import ClutterConfig
-from maniskill_pnp.agents.pixel.evaluate import EPISODE_COLUMNS, METRICS, SCENARIO_COLUMNS, ClutterEvalConfig
+from maniskill_pnp.agents.pixel.evaluate import EPISODE_COLUMNS, METRICS, SCENARIO_COLUMNS, TABLE_HEADER, ClutterEvalConfig
 from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS
 from maniskill_pnp.agents.pixel.video import ClutterVideoConfig
 from maniskill_pnp.agents.tabular.video import ConveyorVideoConfig
@@ -418,7 +418,7 @@ def test_eval_clutter(jobs):
     assert {Path(p).name for p in summary["files"].values()} == {
         "eval_summary.json", "eval_table.md", "eval_table.csv", "eval_episodes.csv", "q_heatmaps.png"}
     _csv(out / "eval_table.csv", SCENARIO_COLUMNS, 1)
-    (row,) = _markdown_table(out / "eval_table.md", SCENARIO_COLUMNS, 1)
+    (row,) = _markdown_table(out / "eval_table.md", TABLE_HEADER, 1)
     assert row.startswith("| train | 1 |")
     (episode,) = _csv(out / "eval_episodes.csv", EPISODE_COLUMNS, 1)
     assert 1 <= int(episode["actions"]) <= 2

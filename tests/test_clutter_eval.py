@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import json
+import math
+import statistics
 
 import matplotlib.image
 import pytest
 
 from maniskill_pnp.agents.pixel.config import ClutterConfig
-from maniskill_pnp.agents.pixel.evaluate import METRICS, ClutterEvalConfig, run
+from maniskill_pnp.agents.pixel.evaluate import (
+    METRICS, SCENARIO_COLUMNS, ClutterEvalConfig, comparison_table, paired_differences, run, summarize,
+)
 from maniskill_pnp.agents.pixel.recipe import main as train
 from maniskill_pnp.cli import main as cli
 
@@ -31,12 +35,52 @@ def test_eval_writes_metrics_tables_and_q_map_figure(tiny_clutter_run, tmp_path)
     assert summary["metrics"] == report["metrics"]
 
     csv_lines = (out / "eval_table.csv").read_text().splitlines()
-    assert csv_lines[0] == "scenario,episodes," + ",".join(METRICS) and csv_lines[1].startswith("train,1,")
+    assert csv_lines[0] == ",".join(SCENARIO_COLUMNS) and csv_lines[1].startswith("train,1,")
     assert len(csv_lines) == 2
 
     image = matplotlib.image.imread(out / "q_heatmaps.png")
     assert image.ndim == 3 and image.shape[0] > 100 and image.shape[1] > 300 and image.shape[2] in (3, 4)
     assert image[..., :3].std() > 0  # not a blank canvas
+
+
+def _episode(seed, actions, grasp_attempts, grasps, placed, cleared, objects=4, faults=0, scenario="medium"):
+    return dict(scenario=scenario, seed=seed, objects=objects, actions=actions, grasp_attempts=grasp_attempts,
+                grasps=grasps, placed=placed, lost=0, cleared=cleared, max_failure_run=1, faults=faults, layout="")
+
+
+def test_summary_has_standard_errors_over_scenes_and_fault_rate():
+    episodes = [_episode(1, 4, 4, 4, 4, True), _episode(2, 8, 6, 3, 2, False, faults=1), _episode(3, 5, 0, 0, 0, False)]
+    s = summarize(episodes)
+    assert s["success_rate"] == pytest.approx((1 + 0.25 + 0) / 3)
+    assert s["grasp_success"] == pytest.approx(7 / 10)  # pooled over attempts
+    assert s["completion"] == pytest.approx(1 / 3) and s["action_efficiency"] == pytest.approx(1.0)
+    assert s["success_rate_se"] == pytest.approx(statistics.stdev([1, 0.25, 0]) / math.sqrt(3))
+    assert s["grasp_success_se"] == pytest.approx(statistics.stdev([1, 0.5]) / math.sqrt(2))  # scenes with attempts
+    assert s["completion_se"] == pytest.approx(statistics.stdev([1, 0, 0]) / math.sqrt(3))
+    assert s["faults_per_100_actions"] == pytest.approx(100 / 17)
+    assert summarize(episodes[:1])["success_rate_se"] == 0.0
+
+
+def test_paired_differences_match_scenes_and_the_comparison_command(tmp_path, capsys):
+    a = [_episode(1, 4, 4, 4, 4, True), _episode(2, 4, 2, 2, 2, False), _episode(9, 4, 4, 4, 4, True)]
+    b = [_episode(1, 8, 8, 4, 4, True), _episode(2, 4, 4, 1, 1, False), _episode(3, 4, 4, 4, 4, True)]
+    d = paired_differences(a, b)["medium"]
+    assert d["scenes"] == 2  # seeds 1 and 2 are in both
+    assert d["success_rate"]["mean"] == pytest.approx(((1 - 0.5) + (0.5 - 0.25)) / 2)
+    assert d["success_rate"]["se"] == pytest.approx(statistics.stdev([0.5, 0.25]) / math.sqrt(2))
+    assert d["completion"]["mean"] == 0.0
+    with pytest.raises(ValueError, match="share no scene"):
+        paired_differences(a, [_episode(7, 1, 1, 1, 1, True)])
+
+    for name, episodes in (("a", a), ("b", b)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "eval_summary.json").write_text(json.dumps(dict(episodes=episodes)))
+    table = comparison_table(tmp_path / "a", tmp_path / "b")
+    assert "| medium | 2 | +37.5 ± 12.5 |" in table
+    cli(["compare-clutter", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "cmp.md")])
+    assert "| medium | 2 |" in capsys.readouterr().out and (tmp_path / "cmp.md").read_text().strip() == table
+    with pytest.raises(SystemExit, match="compare-clutter: .*nowhere"):
+        cli(["compare-clutter", str(tmp_path / "a"), str(tmp_path / "nowhere")])
 
 
 def test_missing_or_corrupt_checkpoint_is_a_clear_error(tmp_path):

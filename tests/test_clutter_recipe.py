@@ -168,6 +168,7 @@ def test_grasp_slide_bce_smoke_run(tmp_path):
     summary = _train(tmp_path, 2, "--loss", "bce", "--eps-start", "1", "--eps-end", "1", "--explore-weights", "0", "1",
                      "1", preset="gs-cpu-small")
     assert summary["steps"] == 2 and summary["updates"] == 2
+    assert summary["faults_per_100_actions"] == 100.0 * summary["faults"] / 2
     run_dir = tmp_path / "gs-cpu-small_small_r2_px32_seed0"
     with open(run_dir / "actions.csv") as f:
         assert {row["primitive"] for row in csv.DictReader(f)} <= {"1", "2"}  # left or right slide
@@ -195,10 +196,12 @@ def test_outcome_tracker_reads_grasps_places_and_episodes_from_the_outcome_keys(
     # grasp + place, slide that changed the scene, failed grasp, invalid action (no primitive ran), grasp and hold
     frames = outcome_frames(primitive=[0, 1, 0, -1, 0], reward=[1.0, 0.5, 0.0, 0.0, 0.8],
                             grasped=[True, False, False, False, True], placed=[True, False, False, False, False],
-                            done=[False, False, False, False, True], slide_changed=[False, True, False, False, False])
+                            done=[False, False, False, False, True], slide_changed=[False, True, False, False, False],
+                            fault=[False, False, False, False, True])
     finished = tracker.add(frames)
     assert tracker.grasp_success == pytest.approx(2 / 3) and tracker.last_grasps == 2
     assert tracker.success_rate == pytest.approx(1 / 5)
+    assert tracker.faults_per_100_actions == pytest.approx(20.0) and tracker.last_faults == 1
     assert finished == [dict(actions=5, placed=1, success_rate=0.2, completed=True)]
 
 

@@ -29,6 +29,11 @@ Metrics (``docs/metrics.md``, computed from the env's ``info`` of every step):
 * ``action_efficiency`` (VPG): objects / actions, summed over the completed episodes (0 when none completed, as in
   :mod:`maniskill_pnp.bench.clutter_oracle`).
 
+Each comes with its standard error over scenes (``<metric>_se``: the spread of the per-scene values of
+:func:`scene_values`), and each scenario with its faults per 100 actions (steps that ended on a fault of the
+simulation, ``info["fault"]``). :func:`paired_differences` pairs two evaluations scene by scene (``maniskill-pnp
+compare-clutter A B``), e.g. a G&S agent against its ``grasp_only`` restriction.
+
 Files written into ``out``: ``eval_summary.json`` (metrics per scenario, per-episode records, both configs),
 ``eval_table.md`` and ``eval_table.csv`` (one row per scenario: the metrics), ``eval_episodes.csv`` (one row per
 episode), and ``q_heatmaps.png``: the colour and depth heightmaps of the first state of the first episode beside the
@@ -70,9 +75,11 @@ MAX_FAILURE_RUN = 10
 METRICS = ("success_rate", "grasp_success", "completion", "action_efficiency")
 #: Columns of the per-episode table.
 EPISODE_COLUMNS = ("scenario", "seed", "objects", "actions", "grasp_attempts", "grasps", "placed", "lost", "cleared",
-                   "max_failure_run", "success_rate", "grasp_success", "layout")
+                   "max_failure_run", "success_rate", "grasp_success", "faults", "layout")
 #: Columns of the per-scenario table (Table IX).
-SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS)
+SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS, *(f"{m}_se" for m in METRICS), "faults_per_100_actions")
+#: Columns of ``eval_table.md``: each metric is shown as "value ± standard error".
+TABLE_HEADER = ("scenario", "episodes", *METRICS, "faults / 100 actions")
 
 
 @dataclass(frozen=True)
@@ -154,17 +161,93 @@ class ClutterEvalConfig:
 
 
 # ----------------------------------------------------------------------------- metrics
+def is_completed(episode: dict) -> bool:
+    """Whether an episode record counts as completed: cleared with no run of more than :data:`MAX_FAILURE_RUN`
+    consecutive failures."""
+    return bool(episode["cleared"]) and episode["max_failure_run"] <= MAX_FAILURE_RUN
+
+
+def scene_values(episode: dict) -> dict[str, float | None]:
+    """Each metric of :data:`METRICS` on one scene (an episode record); None where it is undefined (grasp success
+    of a scene without grasp attempts). Their means over scenes give the per-scene averages whose standard errors
+    :func:`summarize` reports."""
+    e, completed = episode, is_completed(episode)
+    return dict(success_rate=e["placed"] / e["actions"],
+                grasp_success=e["grasps"] / e["grasp_attempts"] if e["grasp_attempts"] else None,
+                completion=float(completed), action_efficiency=e["objects"] / e["actions"] if completed else 0.0)
+
+
+def standard_error(values) -> float:
+    """Standard error of the mean of ``values`` (sample standard deviation / sqrt(n)); 0 for fewer than 2."""
+    values = [v for v in values if v is not None]
+    return statistics.stdev(values) / math.sqrt(len(values)) if len(values) > 1 else 0.0
+
+
 def summarize(episodes: list[dict]) -> dict:
-    """The metrics (see the module docstring) of per-episode records from :func:`run_episode`."""
+    """The metrics (see the module docstring) of per-episode records from :func:`run_episode`, the standard error
+    over scenes of each (``<metric>_se``, from :func:`scene_values`) and the faults per 100 actions."""
     attempts = sum(e["grasp_attempts"] for e in episodes)
-    completed = [e for e in episodes if e["cleared"] and e["max_failure_run"] <= MAX_FAILURE_RUN]
+    completed = [e for e in episodes if is_completed(e)]
     completed_actions = sum(e["actions"] for e in completed)
+    per_scene = [scene_values(e) for e in episodes]
+    actions = sum(e["actions"] for e in episodes)
     return dict(
         success_rate=statistics.mean(e["placed"] / e["actions"] for e in episodes),
         grasp_success=sum(e["grasps"] for e in episodes) / attempts if attempts else 0.0,
         completion=len(completed) / len(episodes),
         action_efficiency=sum(e["objects"] for e in completed) / completed_actions if completed_actions else 0.0,
+        **{f"{m}_se": standard_error(v[m] for v in per_scene) for m in METRICS},
+        faults_per_100_actions=100.0 * sum(e.get("faults", 0) for e in episodes) / actions if actions else 0.0,
     )
+
+
+def paired_differences(episodes_a: list[dict], episodes_b: list[dict]) -> dict[str, dict]:
+    """Per scenario, the paired per-scene difference A - B of every metric (mean and standard error over the scenes
+    both evaluations played: same scenario, seed and layout), e.g. a G&S agent against its grasp-only restriction
+    on the same scenes. ValueError when they share no scene."""
+    key = lambda e: (e["scenario"], int(e["seed"]), e.get("layout", ""))  # noqa: E731
+    b_by_key = {key(e): e for e in episodes_b}
+    out: dict[str, dict] = {}
+    for a in episodes_a:
+        b = b_by_key.get(key(a))
+        if b is None:
+            continue
+        va, vb = scene_values(a), scene_values(b)
+        row = out.setdefault(a["scenario"], {m: [] for m in METRICS})
+        for m in METRICS:
+            if va[m] is not None and vb[m] is not None:
+                row[m].append(va[m] - vb[m])
+    if not out:
+        raise ValueError("the two evaluations share no scene (scenario, seed and layout)")
+    return {scenario: dict(scenes=len(diffs["completion"]),
+                           **{m: dict(mean=statistics.mean(d) if d else 0.0, se=standard_error(d), scenes=len(d))
+                              for m, d in diffs.items()})
+            for scenario, diffs in out.items()}
+
+
+def comparison_table(eval_a: Path, eval_b: Path) -> str:
+    """Markdown table of :func:`paired_differences` between two ``eval-clutter`` output folders (or their
+    ``eval_summary.json``): per scenario, A - B of each metric in points, ± its standard error over the paired
+    scenes. FileNotFoundError / ValueError naming the folder for a missing or unreadable summary."""
+    import json
+
+    def episodes(path: Path) -> list[dict]:
+        path = Path(path)
+        summary = path / "eval_summary.json" if path.is_dir() else path
+        if not summary.is_file():
+            raise FileNotFoundError(f"{path}: no eval_summary.json (an eval-clutter output folder?)")
+        try:
+            return json.loads(summary.read_text())["episodes"]
+        except (json.JSONDecodeError, KeyError, TypeError) as e:
+            raise ValueError(f"{summary} is not an eval-clutter summary: {e}") from e
+
+    diffs = paired_differences(episodes(eval_a), episodes(eval_b))
+    lines = [f"A = {eval_a}, B = {eval_b}; paired per-scene differences A - B (points ± standard error)", "",
+             "| scenario | scenes | " + " | ".join(METRICS) + " |", "|---" * (len(METRICS) + 2) + "|"]
+    for scenario, d in diffs.items():
+        cells = [f"{100 * d[m]['mean']:+.1f} ± {100 * d[m]['se']:.1f}" for m in METRICS]
+        lines.append(f"| {scenario} | {d['scenes']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 # ----------------------------------------------------------------------------- episodes
@@ -196,6 +279,7 @@ class EpisodeTally:
     grasp_attempts: int = 0
     grasps: int = 0
     placed: int = 0
+    faults: int = 0
     max_failure_run: int = 0
 
     def add(self, info: dict) -> None:
@@ -204,6 +288,7 @@ class EpisodeTally:
         self.grasp_attempts += int(is_grasp_attempt(self.primitives, int(info["primitive_index"])))
         self.grasps += int(info["grasp_success"])
         self.placed += int(info["place_success"])
+        self.faults += int(info["fault"])
         self.max_failure_run = max(self.max_failure_run, int(info["consecutive_failures"]))
 
 
@@ -247,7 +332,7 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         scenario=scenario, seed=seed, objects=objects, actions=t.actions, grasp_attempts=t.grasp_attempts, grasps=t.grasps,
         placed=t.placed, lost=int(info["lost_objects"]), cleared=bool(info["success"].item()),
         max_failure_run=t.max_failure_run, success_rate=t.placed / t.actions,
-        grasp_success=t.grasps / t.grasp_attempts if t.grasp_attempts else 0.0, layout=layout,
+        grasp_success=t.grasps / t.grasp_attempts if t.grasp_attempts else 0.0, faults=t.faults, layout=layout,
     )
     return record, first
 
@@ -313,10 +398,12 @@ def _write_csv(path: Path, columns, rows) -> None:
 
 
 def write_tables(rows: list[dict], episodes: list[dict], out: Path) -> tuple[Path, Path, Path]:
-    """``eval_table.md`` / ``eval_table.csv`` (one row per scenario: :data:`SCENARIO_COLUMNS`, metrics in %) and
+    """``eval_table.md`` (one row per scenario: each metric in % ± its standard error over scenes, faults per 100
+    actions), ``eval_table.csv`` (the same as fractions: :data:`SCENARIO_COLUMNS`) and
     ``eval_episodes.csv`` (one row per episode: :data:`EPISODE_COLUMNS`)."""
-    md = ["| " + " | ".join(SCENARIO_COLUMNS) + " |", "|" + "|".join("---" for _ in SCENARIO_COLUMNS) + "|"]
-    md += ["| " + " | ".join([r["scenario"], str(r["episodes"]), *(f"{r[k]:.1%}" for k in METRICS)]) + " |" for r in rows]
+    md = ["| " + " | ".join(TABLE_HEADER) + " |", "|---" * len(TABLE_HEADER) + "|"]
+    md += ["| " + " | ".join([r["scenario"], str(r["episodes"]), *(f"{r[k]:.1%} ± {r[f'{k}_se']:.1%}" for k in METRICS),
+                              f"{r['faults_per_100_actions']:.2f}"]) + " |" for r in rows]
     md_path, csv_path, ep_path = out / "eval_table.md", out / "eval_table.csv", out / "eval_episodes.csv"
     atomic_write_bytes(md_path, lambda f: f.write(("\n".join(md) + "\n").encode()))
     _write_csv(csv_path, SCENARIO_COLUMNS, rows)
@@ -385,7 +472,7 @@ def run(cfg: ClutterEvalConfig) -> dict:
     md_path, csv_path, ep_path = write_tables(rows, episodes, out)
     png_path = plot_q_heatmaps(first, primitives, out / "q_heatmaps.png")
     json_path = out / "eval_summary.json"
-    metrics = {r["scenario"]: {k: r[k] for k in METRICS} for r in rows}
+    metrics = {r["scenario"]: {k: v for k, v in r.items() if k not in ("scenario", "episodes")} for r in rows}
     summary = dict(
         checkpoint=str(ckpt), metrics=metrics, episodes=episodes, wall_s=wall, device=str(device),
         eval_config=cfg.to_json(), train_config=train_cfg.to_json(), train_counters=counters,
@@ -397,5 +484,5 @@ def run(cfg: ClutterEvalConfig) -> dict:
     return summary
 
 
-__all__ = ["ClutterEvalConfig", "EpisodeTally", "MAX_FAILURE_RUN", "METRICS", "decide", "plot_q_heatmaps", "run", "run_episode", "summarize",
-           "write_tables"]
+__all__ = ["ClutterEvalConfig", "EpisodeTally", "MAX_FAILURE_RUN", "METRICS", "SCENARIO_COLUMNS", "TABLE_HEADER", "comparison_table", "decide", "is_completed", "paired_differences",
+           "plot_q_heatmaps", "run", "run_episode", "scene_values", "standard_error", "summarize", "write_tables"]

@@ -4,7 +4,8 @@ action, read from the outcome the env reports for every step (``info`` keys
 
 Definitions (those of ``docs/metrics.md``): a grasp attempt is an action whose primitive is named ``"grasp"``
 (:func:`is_grasp_attempt`); ``grasp_success`` = grasp attempts that lifted an object (``info["grasp_success"]``) /
-grasp attempts; ``success_rate`` = objects placed in the bin (``info["place_success"]``) / actions. Per finished
+grasp attempts; ``success_rate`` = objects placed in the bin (``info["place_success"]``) / actions; ``faults_per_100_actions`` = actions that ended on a
+fault of the simulation (``info["fault"]``) per 100 actions. Per finished
 episode: ``episode/success_rate`` (its placed objects / its actions), ``episode/completion`` (1 when the workspace
 was cleared) and ``episode/actions``. The greedy evaluation (:mod:`~maniskill_pnp.agents.pixel.evaluate`) counts
 with the same rule from the same keys.
@@ -51,7 +52,9 @@ class OutcomeTracker:
         self.primitives = tuple(primitives)
         self.grasps: deque[bool] = deque(maxlen=window)
         self.placed: deque[bool] = deque(maxlen=window)
+        self.faulted: deque[bool] = deque(maxlen=window)
         self.last_grasps = 0
+        self.last_faults = 0
         self.step = int(start_step)
         self._episodes: dict = {}  # stream (worker, trajectory) -> actions and placed objects so far
         self._log = None if log_path is None else _open_action_log(Path(log_path), self.step)
@@ -59,11 +62,12 @@ class OutcomeTracker:
     def add_batch(self, batch: TensorDictBase) -> list[dict]:
         """Record a collector batch, stream by stream (per worker and episode, in time order, see
         :func:`~maniskill_pnp.agents.collection.streams`); returns the episodes it finished."""
-        finished, grasps = [], 0
+        finished, grasps, faults = [], 0, 0
         for stream, frames in streams(batch):
             finished += self.add(frames, stream)
             grasps += self.last_grasps
-        self.last_grasps = grasps
+            faults += self.last_faults
+        self.last_grasps, self.last_faults = grasps, faults
         return finished
 
     def add(self, frames: TensorDictBase, stream=0) -> list[dict]:
@@ -71,13 +75,15 @@ class OutcomeTracker:
         workers interleave); returns the episodes they finished."""
         nxt = frames.get("next")
         columns = [frames.get("action").reshape(-1).tolist()] + [nxt.get(key).reshape(-1).tolist() for key in OUTCOME_ENTRIES]
-        finished, self.last_grasps = [], 0
+        finished, self.last_grasps, self.last_faults = [], 0, 0
         for a, p, r, grasped, placed, changed, fault, d, t in zip(*columns):
             attempt = is_grasp_attempt(self.primitives, p)
             if attempt:
                 self.grasps.append(bool(grasped))
             self.last_grasps += int(grasped)
             self.placed.append(bool(placed))
+            self.faulted.append(bool(fault))
+            self.last_faults += int(fault)
             self.step += 1
             if self._log is not None:
                 self._log.write(f"{self.step},{p},{a},{r:.4g},{int(attempt)},{int(grasped)},{int(placed)},{int(d)},"
@@ -105,6 +111,11 @@ class OutcomeTracker:
     def success_rate(self) -> float:
         """Objects placed / actions, over the window."""
         return sum(self.placed) / len(self.placed) if self.placed else 0.0
+
+    @property
+    def faults_per_100_actions(self) -> float:
+        """Actions that ended on a fault of the simulation (``info["fault"]``) per 100 actions, over the window."""
+        return 100.0 * sum(self.faulted) / len(self.faulted) if self.faulted else 0.0
 
 
 def log_scalars(logger, step: int, scalars: dict[str, float]) -> None:

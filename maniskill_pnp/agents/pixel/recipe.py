@@ -24,8 +24,9 @@ grasps where the heightmap shows material, slides that start on bare table and m
 length (:class:`~maniskill_pnp.agents.pixel.mask.HeightmapActionMask`).
 
 Metrics of the ε-greedy behaviour (``docs/metrics.md``), logged as running values over the last ``success_window``
-actions: ``grasp_success`` (grasp attempts that lifted an object / grasp attempts) and ``success_rate`` (objects
-placed in the bin / actions); per finished episode also ``episode/success_rate`` and ``episode/completion``
+actions: ``grasp_success`` (grasp attempts that lifted an object / grasp attempts), ``success_rate`` (objects
+placed in the bin / actions) and ``faults_per_100_actions`` (steps that ended on a fault of the simulation; the run's
+total is in ``train_summary.json``); per finished episode also ``episode/success_rate`` and ``episode/completion``
 (:mod:`~maniskill_pnp.agents.pixel.metrics`).
 
 The pieces live beside this module: the config and presets (:mod:`~maniskill_pnp.agents.pixel.config`), the env,
@@ -58,7 +59,8 @@ def main(cfg: ClutterConfig) -> dict:
     """Train one pixelwise DQN agent; returns a summary (run folder, steps, episodes, grasp success)."""
     require_logger(cfg.logger)  # a missing tensorboard extra fails before anything is built
     payload = resume_payload(cfg)
-    counters = dict(payload["counters"]) if payload else dict(steps=0, episodes=0, updates=0, grasps=0)
+    counters = dict(steps=0, episodes=0, updates=0, grasps=0, faults=0)
+    counters.update(payload["counters"] if payload else {})  # a checkpoint of an older version has no "faults"
     torch.manual_seed(cfg.seed)
     run_dir = cfg.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -112,7 +114,8 @@ def main(cfg: ClutterConfig) -> dict:
     if env is not None:
         env.close()
     summary.update(counters, running_grasp_success=monitor.tracker.grasp_success,
-                   running_success_rate=monitor.tracker.success_rate, wall_s=time.perf_counter() - t0,
+                   running_success_rate=monitor.tracker.success_rate,
+                   faults_per_100_actions=100.0 * counters["faults"] / max(counters["steps"], 1), wall_s=time.perf_counter() - t0,
                    stopped_by_time=out_of_time)
     write_json(run_dir / "train_summary.json", summary)
     return summary
@@ -177,7 +180,8 @@ class Monitor:
         finished = self.tracker.add_batch(batch)
         log_episodes(self.logger, finished, first=counters["episodes"] + 1)
         counters.update(steps=counters["steps"] + batch.numel(), episodes=counters["episodes"] + len(finished),
-                        grasps=counters["grasps"] + self.tracker.last_grasps)
+                        grasps=counters["grasps"] + self.tracker.last_grasps,
+                        faults=counters["faults"] + self.tracker.last_faults)
 
     def show(self, n: int, counters: dict, eps: float, loss: float) -> None:
         t = self.tracker
@@ -190,7 +194,8 @@ class Monitor:
         log_scalars(self.logger, counters["steps"], {
             "train/loss": loss, "train/epsilon": eps, "train/reward": float(batch.get(("next", "reward")).mean()),
             "train/grasp_success": self.tracker.grasp_success, "train/success_rate": self.tracker.success_rate,
-            "train/episodes": counters["episodes"], "time/wall_s": wall})
+            "train/faults_per_100_actions": self.tracker.faults_per_100_actions, "train/episodes": counters["episodes"],
+            "time/wall_s": wall})
 
     def close(self) -> None:
         self.bar.close()
