@@ -97,7 +97,7 @@ def test_missing_or_corrupt_checkpoint_is_a_clear_error(tmp_path):
     assert not (tmp_path / "eval").exists()
 
 
-@pytest.mark.parametrize("option", [dict(episodes=0), dict(max_steps=0), dict(num_objects=0), dict(seed=-1),
+@pytest.mark.parametrize("option", [dict(episodes=0), dict(max_steps=0), dict(actions_per_object=0), dict(num_objects=0), dict(seed=-1),
                                     dict(device="gpu7"), dict(scenarios=("crowded",))])
 def test_bad_options_name_the_option(option, tmp_path):
     name = next(iter(option))
@@ -118,10 +118,11 @@ def test_grasp_slide_table_ix_over_scenarios_and_grasp_only(tmp_path):
     assert [e["scenario"] for e in both["episodes"]] == ["2", "complicated"]
     assert 3 <= both["episodes"][1]["objects"] <= 7  # a hand-designed locking layout
 
-    grasps = run(ClutterEvalConfig(checkpoint=cfg.run_dir, episodes=1, max_steps=2, scenarios=("2",), grasp_only=True,
-                                   out=tmp_path / "grasp_only"))
+    grasps = run(ClutterEvalConfig(checkpoint=cfg.run_dir, episodes=1, scenarios=("2",), grasp_only=True,
+                                   actions_per_object=0.5, out=tmp_path / "grasp_only"))
     (episode,) = grasps["episodes"]
     assert episode["grasp_attempts"] == episode["actions"]
+    assert episode["actions"] == 1  # at most 0.5 x 2 objects actions
 
 
 def test_record_clutter_films_the_arm_beside_each_decision(tiny_clutter_run, tmp_path):

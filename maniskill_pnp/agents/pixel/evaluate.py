@@ -5,7 +5,7 @@ The network of a ``checkpoint.pt`` written by :func:`~maniskill_pnp.agents.pixel
 rebuilt from the checkpoint's own config (:func:`~maniskill_pnp.agents.pixel.factories.load_policy`) and run
 greedily (argmax of the Q maps, no ε) over seeded scenes: episode ``i`` is reset with seed ``seed + i``. The default seed 1000 keeps the test scenes apart from the small seeds training uses.
 An episode ends when the workspace is clear, when the task truncates it (too many consecutive failures or
-actions) or after ``max_steps`` actions. The policy acts under the action mask its training used (grasps only where
+actions), after ``actions_per_object`` × its objects actions (3 by default) or after ``max_steps`` actions. The policy acts under the action mask its training used (grasps only where
 there is material, see :mod:`~maniskill_pnp.agents.pixel.mask`); ``grasp_only`` also masks out a G&S agent's
 slides, the thesis' grasp-only comparison on the same network. With ``avoid_repeats`` the policy never repeats an
 action that failed since the last success (pure argmax without it: a failure that leaves the scene unchanged leaves
@@ -96,6 +96,9 @@ class ClutterEvalConfig:
     """Seed of the first scene; the default keeps the test scenes apart from the small seeds used in training."""
     max_steps: int | None = None
     """Cap on actions per episode (an episode cut by it is not completed); None: only the task's own limits."""
+    actions_per_object: float | None = 3.0
+    """Cap on an episode's actions per object of its scene (3: at most 3 × objects actions, the evaluation protocol
+    of the results table); an episode cut by it is not completed. None (or a large value): no such cap."""
     scenarios: tuple[str, ...] = ()
     """Scenes to evaluate, one table row each: "train", an object count, "min", "medium", "max" or "complicated";
     none: "train", or only the layout files when some are given."""
@@ -136,6 +139,8 @@ class ClutterEvalConfig:
             raise ValueError(f"num_objects must be >= 1 (or None for the checkpoint's value), got {self.num_objects}")
         if self.max_steps is not None and self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1 (or None for no cap), got {self.max_steps}")
+        if self.actions_per_object is not None and not self.actions_per_object > 0:
+            raise ValueError(f"actions_per_object must be > 0 (or None for no cap), got {self.actions_per_object}")
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
         if self.device != "auto":
@@ -294,7 +299,7 @@ class EpisodeTally:
 
 def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, max_steps: int | None,
                 on_step=None, scenario: str = "train", avoid_repeats: bool = False, layout_index: int | None = None,
-                layout: str = "") -> tuple[dict, dict]:
+                layout: str = "", actions_per_object: float | None = None) -> tuple[dict, dict]:
     """One greedy episode of the gymnasium env ``env`` from ``reset(seed=seed)``.
 
     Args:
@@ -303,12 +308,16 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         layout_index: The env's explicit layout to play (``reset(options={"layout_index": k})``); None: the env's own
             choice.
         layout: The record's ``layout`` (the name of that layout).
+        actions_per_object: Also cap the actions at this many per object of the scene.
 
     Returns:
         The episode record (``EPISODE_COLUMNS``) and the first decision: ``{"color", "depth", "maps", "action"}``.
     """
     obs, info = env.reset(seed=seed, options=None if layout_index is None else {"layout_index": layout_index})
     objects = int(info["num_objects"])
+    if actions_per_object is not None:
+        cap = max(1, math.floor(actions_per_object * objects))
+        max_steps = cap if max_steps is None else min(max_steps, cap)
     tally = EpisodeTally(env.unwrapped.primitive_names)
     first = None
     done = False
@@ -456,7 +465,8 @@ def run(cfg: ClutterEvalConfig) -> dict:
                 for i in range(cfg.episodes):
                     k = None if layouts is None else i % len(layouts)
                     record, decision = run_episode(env, actor, cfg.seed + i, device, cfg.max_steps, on_step, scenario,
-                                                   cfg.avoid_repeats, k, "" if k is None else layouts[k])
+                                                   cfg.avoid_repeats, k, "" if k is None else layouts[k],
+                                                   cfg.actions_per_object)
                     scenario_episodes.append(record)
                     first = first or decision
                     bar.update()
