@@ -56,3 +56,23 @@ def tiny_clutter_run(tmp_path_factory):
     summary = train(cfg)
     assert summary["steps"] == 2
     return cfg.run_dir
+
+
+def u_prism(length=0.05, width=0.04, thickness=0.012, height=0.03):
+    """A watertight U-shaped prism (trimesh): a base bar along x and two arms along y, ``height`` high, its corner at
+    the origin (not centred: mesh objects centre themselves)."""
+    import numpy as np
+    import trimesh
+
+    l, w, t = length, width, thickness
+    outline = np.array([[0, 0], [l, 0], [l, w], [l - t, w], [l - t, t], [t, t], [t, w], [0, w]], dtype=float)
+    triangles = np.array([[0, 1, 4], [1, 2, 3], [1, 3, 4], [0, 4, 5], [0, 5, 6], [0, 6, 7]])
+    return trimesh.creation.extrude_triangulation(outline, triangles, height)
+
+
+@pytest.fixture(scope="session")
+def u_mesh(tmp_path_factory):
+    """An OBJ file of :func:`u_prism` (5 x 4 cm, arms 1.2 cm thick, 3 cm high), in a folder of its own."""
+    path = tmp_path_factory.mktemp("meshes") / "u_shape.obj"
+    u_prism().export(path)
+    return path

@@ -19,7 +19,7 @@ import pytest
 import yaml
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
-from maniskill_pnp.tasks.clutter import as_pose
+from maniskill_pnp.tasks.clutter import as_pose, random_specs
 from maniskill_pnp.tasks.complicated_layouts import (COMPLICATED_LAYOUT_NAMES, COMPLICATED_SCENES_DIR,
                                                      complicated_layout_files, complicated_layouts)
 from maniskill_pnp.tasks.objects import ObjectSpec
@@ -119,7 +119,7 @@ def test_workspace_frame_follows_the_workspace(tmp_path):
     a, b = load_scene(path, WS), load_scene(path, moved)
     np.testing.assert_allclose(np.asarray(b[0][1].p) - a[0][1].p, [0.1 + 0.06, 0.2 + 0.1, 0.05], atol=1e-9)
     world = dict(VALID, frame="world")
-    with pytest.raises(SceneFileError, match="outside the workspace"):  # the same numbers as world coordinates
+    with pytest.raises(SceneFileError, match="not over the workspace"):  # the same numbers as world coordinates
         load_scene(_write(tmp_path / "world.yaml", dict(world, objects=[dict(VALID["objects"][1], position=[0.3, 0.3, 0.02])])), WS)
 
 
@@ -141,7 +141,8 @@ def _obj(key, value=None, drop=False):
 #: (change of VALID, message after "<file>: ").
 BAD = [
     (_obj("kind", "blob"), r"objects\[1\]\.kind: unknown kind 'blob'; valid kinds"),
-    (_obj("kind", "mesh"), r"objects\[1\]\.kind: kind 'mesh' is not supported yet"),
+    (_obj("kind", "mesh"), r"objects\[1\]\.size: mesh objects take file and scale"),
+    (_obj("file", "bar.obj"), r"objects\[1\]\.file: only mesh objects take file \(cuboid objects take size\)"),
     (_obj("kind", None, drop=True), r"objects\[1\]\.kind: missing"),
     (_obj("size", [0.02, 0.02]), r"objects\[1\]\.size: cuboid takes 3 values \['hx', 'hy', 'hz'\] \(metres\), got 2 values"),
     (_obj("size", [0.02, "a", 0.02]), r"objects\[1\]\.size: must be"),
@@ -163,8 +164,9 @@ BAD = [
     (lambda d: d.update(frame="table"), r"frame: unknown frame 'table'; valid frames"),
     (lambda d: d.update(scale=2), r"unknown key\(s\) \['scale'\]"),
     (lambda d: d.update(objects=[]), r"objects: must be a non-empty list"),
-    (lambda d: d["objects"][1].update(position=[-0.07, 0.0, 0.02]), r"objects\[0\] \(cuboid\) and objects\[1\] \(cuboid\) overlap"),
-    (lambda d: d["objects"][1].update(position=[0.3, 0.0, 0.02]), r"objects\[1\] \(cuboid\) spans x .*outside the workspace"),
+    (lambda d: d["objects"][1].update(position=[-0.07, 0.0, 0.02]),
+     r"objects\[0\] \(cuboid\) and objects\[1\] \(cuboid\) overlap: their shapes interpenetrate by 40\.0 mm"),
+    (lambda d: d["objects"][1].update(position=[0.3, 0.0, 0.02]), r"objects\[1\] \(cuboid\) has its centre at x .*not over the workspace"),
 ]
 
 
@@ -204,19 +206,78 @@ def test_the_documented_example_loads():
     assert [spec.kind for spec, _ in layout] == ["cuboid", "hull"] and layout[1][0].seed == 7
 
 
-def test_settled_scenes_are_checked_by_their_centres(tmp_path):
-    """Objects at rest may have crossing bounding boxes (piled, tilted): a settled file checks centres only."""
-    leaning = _mutate(lambda d: d["objects"][1].update(position=[-0.05, 0.0, 0.03]))  # boxes overlap
-    with pytest.raises(SceneFileError, match="overlap"):
+def test_layouts_are_checked_by_their_shapes_and_settled_is_ignored(tmp_path):
+    """Objects whose bounding boxes cross but whose shapes do not (a cylinder in an arch's tunnel) load; files of
+    earlier versions marked ``settled: true`` load as any other (the key is ignored: shapes are checked)."""
+    arch = dict(kind="arch", size=[0.09, 0.035, 0.015, 0.045], position=[0.0, 0.0, 0.0225], quaternion=[1, 0, 0, 0])
+    inside = dict(kind="cylinder", size=[0.012, 0.01], position=[0.0, 0.0, 0.01], quaternion=[1, 0, 0, 0])
+    tunnel = dict(format=1, frame="workspace", objects=[arch, inside])
+    assert [s.kind for s, _ in load_scene(_write(tmp_path / "tunnel.yaml", tunnel), WS)] == ["arch", "cylinder"]
+    assert len(load_scene(_write(tmp_path / "old.yaml", dict(VALID, settled=True)), WS)) == 2
+    leaning = _mutate(lambda d: d.update(settled=True) or d["objects"][1].update(position=[-0.05, 0.0, 0.03]))
+    with pytest.raises(SceneFileError, match=r"leaning.yaml: objects\[0\] \(cuboid\) and objects\[1\] \(cuboid\) overlap: "
+                                             r"their shapes interpenetrate by \d+\.\d mm"):
         load_scene(_write(tmp_path / "leaning.yaml", leaning), WS)
-    assert len(load_scene(_write(tmp_path / "settled.yaml", dict(leaning, settled=True)), WS)) == 2
-    far = _mutate(lambda d: d.update(settled=True) or d["objects"][1].update(position=[0.5, 0.0, 0.02]))
-    with pytest.raises(SceneFileError, match=r"far.yaml: objects\[1\] \(cuboid\) has its centre at .*not in the workspace"):
-        load_scene(_write(tmp_path / "far.yaml", far), WS)
-    with pytest.raises(SceneFileError, match="settled: must be true or false"):
-        read_scene(_write(tmp_path / "bad.yaml", dict(VALID, settled="yes please")))
-    path = save_scene(tmp_path / "saved.yaml", load_scene(tmp_path / "settled.yaml", WS), WS, settled=True)
-    assert "settled: true" in path.read_text() and read_scene(path).settled
+    # a bar resting on two cubes (a bridge) loads after a short settle; half of it over one cube does not
+    cube = dict(kind="cuboid", size=[0.015, 0.015, 0.015], quaternion=[1, 0, 0, 0])
+    bar = dict(kind="cuboid", size=[0.05, 0.012, 0.01], quaternion=[1, 0, 0, 0])
+    bridge = dict(format=1, frame="workspace", objects=[dict(cube, position=[-0.035, 0, 0.015]),
+                                                        dict(cube, position=[0.035, 0, 0.015]), dict(bar, position=[0, 0, 0.04])])
+    assert len(load_scene(_write(tmp_path / "bridge.yaml", bridge), WS)) == 3
+    bridge["objects"] = bridge["objects"][:1] + [dict(bar, position=[0.03, 0, 0.04])]
+    with pytest.raises(SceneFileError, match=r"overhang.yaml: objects\[1\] \(cuboid\) does not rest where it is placed: "
+                                             r"it moves \d+\.\d mm in a 0\.30 s physics settle .* objects\[0\] \(cuboid\) "):
+        load_scene(_write(tmp_path / "overhang.yaml", bridge), WS)
+
+
+def _u_layout(u_mesh, **fields):
+    """The U mesh with a small cube in its gap (their bounding boxes cross), at the workspace centre."""
+    u = ObjectSpec("mesh", file=u_mesh, color=(0.2, 0.6, 0.25), **fields)
+    cx, cy = WS.center
+    return [(u, (cx, cy, 0.015, 1.0, 0.0, 0.0, 0.0)), (ObjectSpec("cuboid", (0.01, 0.01, 0.01)), (cx, cy + 0.006, 0.01))]
+
+
+def test_mesh_objects_round_trip(tmp_path, u_mesh):
+    """Mesh paths relative to the scene file's folder when the mesh is in it, absolute otherwise; every mesh field kept."""
+    folder = tmp_path / "scenes"
+    (folder / "parts").mkdir(parents=True)
+    local = folder / "parts" / "u.obj"
+    local.write_bytes(u_mesh.read_bytes())
+    for mesh, fields, written in [(local, {}, "parts/u.obj"), (u_mesh, dict(scale=(1.0, 1.25, 1.0), texture=True,
+                                                                          density=250.0), str(u_mesh.resolve()))]:
+        layout = _u_layout(mesh, **fields)
+        for suffix in (".yaml", ".json"):
+            path = save_scene(folder / f"mesh{suffix}", layout, WS)
+            data = yaml.safe_load(path.read_text())
+            assert data["objects"][0]["file"] == written and "size" not in data["objects"][0]
+            loaded = load_scene(path, WS)
+            assert [s for s, _ in loaded] == [s for s, _ in layout]
+            assert np.abs(np.asarray(loaded[0][1].p) - as_pose(layout[0][1]).p).max() < 1e-6
+    data["objects"][0].update(collision="parts/u.obj", scale=[1, 1, 1])
+    scene = read_scene(_write(folder / "with_parts.json", data))
+    assert scene.objects[0].spec.collision == str(local.resolve()) and scene.objects[0].spec.scale == (1.0, 1.0, 1.0)
+
+
+def test_mesh_entry_errors(tmp_path, u_mesh):
+    base = dict(kind="mesh", file=str(u_mesh), position=[0, 0, 0.015], quaternion=[1, 0, 0, 0])
+    cases = [
+        (dict(file=3), r"objects\[0\]\.file: must be a path"),
+        (dict(file="nowhere.obj"), r"objects\[0\]\.file: mesh file .*nowhere\.obj does not exist"),
+        (dict(collision="nowhere.ply"), r"objects\[0\]\.collision: mesh file .*nowhere\.ply does not exist"),
+        (dict(scale=[1, 1]), r"objects\[0\]\.scale: must be one factor or \[sx, sy, sz\]"),
+        (dict(scale=0), r"objects\[0\]\.scale: must be positive"),
+        (dict(texture="yes"), r"objects\[0\]\.texture: must be true or false"),
+        (dict(density=-1), r"objects\[0\]\.density: must be a positive number"),
+        (dict(seed=3), r"objects\[0\]\.seed: mesh objects take file and scale"),
+        (dict(scale=3), r"objects\[0\] \(mesh\): mesh .*u_shape\.obj \(scale \[3\.0, 3\.0, 3\.0\]\) does not fit the gripper"),
+    ]
+    for change, match in cases:
+        entry = {k: v for k, v in dict(base, **change).items() if v is not None}
+        with pytest.raises(SceneFileError, match=rf"bad_mesh\.yaml: {match}"):
+            read_scene(_write(tmp_path / "bad_mesh.yaml", dict(format=1, frame="workspace", objects=[entry])))
+    entry = {k: v for k, v in base.items() if k != "file"}
+    with pytest.raises(SceneFileError, match=r"objects\[0\]\.file: missing"):
+        read_scene(_write(tmp_path / "bad_mesh.yaml", dict(format=1, frame="workspace", objects=[entry])))
 
 
 def test_shipped_locking_layout_files():
@@ -236,10 +297,11 @@ def test_shipped_locking_layout_files():
 
 # ----------------------------------------------------------------------------- envs
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory):
-    """A random clutter of 4 objects dropped at random orientations (they may tilt and pile up) after its settle: its
-    scene file and its depth heightmap."""
-    env = gym.make("ClutterGrasp-v1", workspace=WS, num_objects=4, loosely_packed=False, **CPU)
+def exported(tmp_path_factory, u_mesh):
+    """A clutter of 4 objects (3 random procedural ones and the U mesh) dropped at random orientations (they may tilt
+    and pile up) after its settle: its scene file and its depth heightmap."""
+    objects = random_specs(np.random.default_rng(5), 3) + [ObjectSpec("mesh", file=u_mesh, color=(0.2, 0.6, 0.25))]
+    env = gym.make("ClutterGrasp-v1", workspace=WS, num_objects=4, loosely_packed=False, objects=objects, **CPU)
     try:
         obs, info = env.reset(seed=3)
         assert int(info["num_objects"]) == 4
@@ -266,7 +328,8 @@ def files_env(exported):
 def test_exported_scene_replays_with_the_same_heightmap(exported, files_env):
     path, depth = exported
     scene = read_scene(path)
-    assert scene.name == "random_four" and scene.frame == "workspace" and scene.settled
+    assert scene.name == "random_four" and scene.frame == "workspace"
+    assert "mesh" in [o.spec.kind for o in scene.objects]  # the U is among the replayed objects
     obs, info = files_env.reset(seed=0, options={"layout_index": 0})
     replayed = obs["depth_heightmap"][0].cpu().numpy()
     assert int(info["layout_index"]) == 0 and int(info["lost_objects"]) == 0
@@ -325,9 +388,9 @@ def test_bad_layout_file_options(env_id, kwargs, error, match):
 
 
 def test_a_scene_that_does_not_fit_the_workspace_names_the_file(tmp_path):
-    small = WorkspaceSpec(heightmap_size=16, pixel_size=0.005, num_rotations=4, spawn_margin=0.01)  # an 8 cm square
+    small = WorkspaceSpec(heightmap_size=16, pixel_size=0.001, num_rotations=4, spawn_margin=0.001)  # a 1.6 cm square
     path = complicated_layout_files()[0]
-    with pytest.raises(SceneFileError, match=r"row_of_three.yaml: objects\[0\] \(cuboid\) spans"):
+    with pytest.raises(SceneFileError, match=r"row_of_three.yaml: objects\[0\] \(cuboid\) has its centre at"):
         gym.make("ClutterGrasp-v1", workspace=small, layout_file=path, **CPU)
 
 

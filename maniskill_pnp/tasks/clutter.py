@@ -1,11 +1,11 @@
-"""Clutter generation: random or hand-designed piles of procedural objects in the workspace.
+"""Clutter generation: random or hand-designed piles of objects (procedural or from mesh files) in the workspace.
 
 * :func:`sample_clutter` draws poses for a list of :class:`ObjectSpec`: loosely packed (upright, random yaw,
   footprints kept ``min_gap`` apart by rejection sampling, so every object can be grasped) or any packing
   (random orientation, anywhere in the spawn square, dropped from staggered heights so they pile up).
-* :func:`validate_layout` checks an explicit layout (a list of ``(ObjectSpec, pose)``): every bounding box inside
-  the workspace, above the table, and no two overlapping (for the poses of objects at rest in a simulation, only
-  their centres over the workspace); it raises a ``ValueError`` naming the culprits.
+* :func:`validate_layout` checks an explicit layout (a list of ``(ObjectSpec, pose)``) by the objects' collision
+  shapes (:mod:`~maniskill_pnp.tasks.layout_check`): inside the workspace, above the table, no two interpenetrating,
+  and touching objects at rest in a short physics settle; it raises a ``ValueError`` naming the culprits.
 * :func:`object_status` says where each object is: in the workspace, in the bin, or lost.
 """
 
@@ -163,56 +163,29 @@ def _inside_xy(box, rect) -> bool:
     return x0 <= c[0] - ext[0] and c[0] + ext[0] <= x1 and y0 <= c[1] - ext[1] and c[1] + ext[1] <= y1
 
 
-def validate_layout(layout: Sequence[tuple[ObjectSpec, object]], workspace: WorkspaceSpec,
-                    settled: bool = False) -> list[tuple[ObjectSpec, sapien.Pose]]:
+def validate_layout(layout: Sequence[tuple[ObjectSpec, object]], workspace: WorkspaceSpec
+                    ) -> list[tuple[ObjectSpec, sapien.Pose]]:
     """Check an explicit layout and return it with poses as ``sapien.Pose``.
 
-    Each entry is ``(ObjectSpec, pose)``; pose as for :func:`as_pose`. Bounding boxes must lie inside the heightmap
-    square, not below the table, and not overlap each other (they may touch).
-
-    Args:
-        settled: The poses are those of objects at rest in a simulation (an exported scene): they do not
-            interpenetrate, but the bounding boxes of tilted or piled objects cross the table and each other (a
-            wedge on its slanted face has its box centre on the table top), so only the centres are checked: each
-            object must be in the workspace as :func:`object_status` counts it.
+    Each entry is ``(ObjectSpec, pose)``; pose as for :func:`as_pose`. Each object's centre must lie over the heightmap
+    square; its collision shapes (not its bounding box) must not reach below the table nor interpenetrate another's; objects that
+    touch others must rest where they are in a short physics settle (:func:`~maniskill_pnp.tasks.layout_check.check_layout`,
+    which also reports the contacts and how far the settle moved each object).
 
     Raises:
-        ValueError: empty layout, a bad entry, an object outside the workspace, or two overlapping objects.
+        ValueError: empty layout, a bad entry, an object outside the workspace or below the table, two
+            interpenetrating objects, or touching objects that do not rest where they are placed.
     """
+    from maniskill_pnp.tasks.layout_check import check_layout
+
     if not layout:
         raise ValueError("a layout needs at least one (ObjectSpec, pose) entry")
     out = []
-    b = workspace.bounds
     for i, entry in enumerate(layout):
         if not isinstance(entry, (tuple, list)) or len(entry) != 2 or not isinstance(entry[0], ObjectSpec):
             raise ValueError(f"layout entry {i} must be (ObjectSpec, pose), got {entry!r}")
-        spec, pose = entry[0], as_pose(entry[1])
-        if settled:
-            p = np.asarray(pose.p, dtype=np.float64)
-            if object_status(p, workspace) != ["workspace"]:
-                raise ValueError(
-                    f"layout object {i} ({spec.kind}) has its centre at ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}): not in the "
-                    f"workspace (x {b[0, 0]:.3f}..{b[0, 1]:.3f}, y {b[1, 0]:.3f}..{b[1, 1]:.3f}, from 5 cm below the table "
-                    f"top at {workspace.table_z})"
-                )
-            out.append((spec, pose))
-            continue
-        c, rot, half = _obb(spec, pose)
-        corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half @ rot.T + c
-        lo, hi = corners.min(0), corners.max(0)
-        if lo[0] < b[0, 0] or hi[0] > b[0, 1] or lo[1] < b[1, 0] or hi[1] > b[1, 1]:
-            raise ValueError(
-                f"layout object {i} ({spec.kind}) spans x {lo[0]:.3f}..{hi[0]:.3f}, y {lo[1]:.3f}..{hi[1]:.3f}: outside the "
-                f"workspace x {b[0, 0]:.3f}..{b[0, 1]:.3f}, y {b[1, 0]:.3f}..{b[1, 1]:.3f}"
-            )
-        if lo[2] < workspace.table_z - 1e-3:
-            raise ValueError(f"layout object {i} ({spec.kind}) reaches z {lo[2]:.3f}, below the table at {workspace.table_z}")
-        out.append((spec, pose))
-    for i in range(len(out) if not settled else 0):
-        for j in range(i + 1, len(out)):
-            if _obb_overlap(_obb(*out[i]), _obb(*out[j])):
-                raise ValueError(f"layout objects {i} ({out[i][0].kind}) and {j} ({out[j][0].kind}) overlap")
-    return out
+        out.append((entry[0], as_pose(entry[1])))
+    return check_layout(out, workspace).layout
 
 
 def object_status(positions: np.ndarray, workspace: WorkspaceSpec, bin_margin: float = 0.01) -> list[str]:

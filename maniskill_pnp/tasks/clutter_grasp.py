@@ -7,7 +7,9 @@ rendered and fused into the next heightmaps.
 
 Objects: a pool of procedural objects (:class:`~maniskill_pnp.tasks.clutter_pool.ClutterPool`) is built once,
 with a fixed library seed; each episode draws ``num_objects`` of them, drops them into the workspace and lets them
-settle. Pool objects not in the episode wait on the floor far from the robot and the cameras. With ``layout=`` the
+settle. ``objects="ycb"`` (ManiSkill's YCB models that fit the gripper, :mod:`~maniskill_pnp.tasks.ycb`) or
+``objects=[...]`` (YCB model ids and/or :class:`~maniskill_pnp.tasks.objects.ObjectSpec`, e.g. mesh files) fill the
+pool from those instead. Pool objects not in the episode wait on the floor far from the robot and the cameras. With ``layout=`` the
 pool is exactly the layout's objects, placed at its poses every episode; ``layout_file=`` reads such layouts from
 scene files (:mod:`~maniskill_pnp.tasks.scene_file`), and :meth:`ClutterGraspEnv.export_scene` writes the current
 scene as one.
@@ -28,6 +30,7 @@ layouts (:meth:`ClutterGraspEnv._resolve_layouts`).
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from dataclasses import replace
@@ -58,6 +61,39 @@ from maniskill_pnp.tasks.scene_file import load_scene, save_scene
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
 ROBOT_BASE = (-0.615, 0.0, 0.0)
+logger = logging.getLogger(__name__)
+
+
+def resolve_objects(objects) -> tuple[ObjectSpec, ...]:
+    """The objects of ``objects=``: ``"ycb"`` (every YCB model that fits the gripper; the others are logged and left
+    out) or a non-empty list of YCB model ids (each must fit) and ObjectSpecs.
+
+    Raises:
+        ValueError: another value, an unknown or unfit YCB model, or no object at all.
+        FileNotFoundError: YCB models asked for without ManiSkill's YCB assets (the message gives the download command).
+    """
+    from maniskill_pnp.tasks.ycb import YCB_SOURCE, ycb_spec, ycb_specs
+
+    if isinstance(objects, str):
+        if objects != YCB_SOURCE:
+            raise ValueError(f"objects must be {YCB_SOURCE!r} or a list of YCB model ids and ObjectSpecs, got {objects!r}")
+        specs, skipped = ycb_specs()
+        for model_id, reason in skipped.items():
+            logger.info("objects='ycb': %s left out: %s", model_id, reason)
+        if not specs:
+            raise ValueError(f"objects='ycb': no YCB model fits the gripper ({len(skipped)} left out)")
+        return tuple(specs)
+    if not isinstance(objects, (list, tuple)) or not objects:
+        raise ValueError(f"objects must be {YCB_SOURCE!r} or a non-empty list of YCB model ids and ObjectSpecs, got {objects!r}")
+    out = []
+    for k, item in enumerate(objects):
+        if isinstance(item, ObjectSpec):
+            out.append(item)
+        elif isinstance(item, str):
+            out.append(ycb_spec(item))
+        else:
+            raise ValueError(f"objects[{k}] must be a YCB model id or an ObjectSpec, got {item!r}")
+    return tuple(out)
 
 
 def camera_clear_home() -> np.ndarray:
@@ -120,6 +156,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         min_gap: float = 0.01,
         layout=None,
         layout_file=None,
+        objects=None,
         max_consecutive_failures: int = 10,
         max_actions: int | None = None,
         include_camera_data: bool = False,
@@ -129,9 +166,11 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         """Args beyond ManiSkill's: ``workspace`` (geometry, cameras, bin), ``num_objects``, ``object_kinds``,
         ``loosely_packed`` and ``min_gap`` (clutter), ``layout`` (explicit list of (ObjectSpec, pose); overrides the
         random clutter), ``layout_file`` (a scene file, or a list of them: one layout each, episodes draw among them;
-        not with ``layout``), ``max_consecutive_failures`` and ``max_actions`` (truncation; default 3 × the largest
-        object count), ``include_camera_data`` (raw RGB-D and camera parameters in the observation), and the
-        motion planner's seed."""
+        not with ``layout``), ``objects`` (what random clutters are made of instead of procedural ``object_kinds``:
+        ``"ycb"`` for every YCB model of ManiSkill's assets that fits the gripper, or a list of YCB model ids and/or
+        ObjectSpecs; not with ``layout``, ``layout_file`` or ``object_kinds``), ``max_consecutive_failures`` and
+        ``max_actions`` (truncation; default 3 × the largest object count), ``include_camera_data`` (raw RGB-D and
+        camera parameters in the observation), and the motion planner's seed."""
         self.workspace = workspace or WorkspaceSpec()
         if isinstance(num_objects, str):
             num_objects = density_range(num_objects)
@@ -141,6 +180,14 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         kinds = (object_kinds,) if isinstance(object_kinds, str) else tuple(object_kinds)
         if not kinds or any(k not in KINDS for k in kinds):
             raise ValueError(f"object_kinds must be a non-empty subset of {list(KINDS)}, got {object_kinds!r}")
+        library = None
+        if objects is not None:
+            if layout is not None or layout_file is not None:
+                raise ValueError("objects= chooses what random clutters are made of: not with layout= or layout_file=, "
+                                 "whose objects are their own")
+            if kinds != KINDS:
+                raise ValueError("give object_kinds= (procedural kinds) or objects= (YCB models, ObjectSpecs), not both")
+            library = resolve_objects(objects)
         if not min_gap >= 0:
             raise ValueError(f"min_gap must be >= 0, got {min_gap!r}")
         if not (isinstance(max_consecutive_failures, int) and max_consecutive_failures >= 1):
@@ -156,7 +203,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         #: The objects: the pool of actors and each env's episode objects.
         self.clutter = ClutterPool(self.workspace, n, layouts, num_objects_range, kinds, bool(loosely_packed), float(min_gap),
                                    size=self.POOL_SIZE, library_seed=self.LIBRARY_SEED, settle=self.SETTLE,
-                                   max_speed=self.MAX_OBJECT_SPEED)
+                                   max_speed=self.MAX_OBJECT_SPEED, library=library)
         self.max_consecutive_failures = max_consecutive_failures
         self.max_actions = int(max_actions) if max_actions is not None else 3 * num_objects_range[1]
         self.include_camera_data = include_camera_data
@@ -375,18 +422,19 @@ class ClutterGraspEnv(PrimitiveStepEnv):
                      description: str | None = None, orientation: str = "quaternion") -> Path:
         """Write env ``env_idx``'s objects still in the workspace, at their current poses, as the scene file ``path``
         (YAML or JSON by its extension; :func:`~maniskill_pnp.tasks.scene_file.save_scene`), to replay it with
-        ``layout_file=``. Objects in the bin or lost are left out. The file is marked ``settled: true`` (the poses of
-        objects at rest: loading checks their centres only, as piled objects' bounding boxes cross); call it between
-        steps or after a reset, when the objects are at rest.
+        ``layout_file=``. Objects in the bin or lost are left out. The layout is validated by its shapes as any other
+        (:func:`~maniskill_pnp.tasks.clutter.validate_layout`: objects at rest pass it); call it between steps or
+        after a reset, when the objects are at rest.
 
         Raises:
-            ValueError: no object left in the workspace, or a bad env index, frame, orientation or extension.
+            ValueError: no object left in the workspace, a layout that does not validate (e.g. two objects pressed
+                more than 1 mm into each other), or a bad env index, frame, orientation or extension.
         """
         layout = self.clutter.workspace_layout(int(env_idx))
         if not layout:
             raise ValueError(f"env {env_idx} has no object left in the workspace: no scene to export")
         return save_scene(path, layout, self.workspace, frame=frame, name=name, description=description,
-                          orientation=orientation, settled=True)
+                          orientation=orientation)
 
     def _choose_layout(self, rng: np.random.Generator, options: dict) -> int:
         """This episode's layout: ``reset(options={"layout_index": k})`` when given, else a seeded draw.

@@ -1,7 +1,7 @@
 """The objects of a clutter task: one pool of procedural actors shared by every sub-scene, drawn per env.
 
-A :class:`ClutterPool` builds its actors once (a seeded library of random objects, or exactly the objects of
-explicit layouts), parks the unused ones on the floor far from the robot and the cameras, draws each env's episode
+A :class:`ClutterPool` builds its actors once (a seeded library of random procedural objects, of given objects such
+as mesh files or YCB models cycled in a seeded order, or exactly the objects of explicit layouts), parks the unused ones on the floor far from the robot and the cameras, draws each env's episode
 clutter from the env's seeded RNG (a random subset dropped by :func:`~maniskill_pnp.tasks.clutter.sample_clutter`,
 or one of the layouts), puts the pool at those poses, gives the :class:`~maniskill_pnp.planning.lockstep.Motion`
 that lets a dropped clutter come to rest, and says where each env's objects are and whether one blew up.
@@ -48,10 +48,13 @@ class ClutterPool:
         num_objects: (min, max) objects of a random clutter.
         kinds: Object kinds of the random library.
         loosely_packed, min_gap: How random clutters are dropped (:func:`~maniskill_pnp.tasks.clutter.sample_clutter`).
-        size: Library size of random clutters (at least ``num_objects[1]``).
+        size: Library size of random procedural clutters (at least ``num_objects[1]``).
         library_seed: Seed of the random library (its shapes, sizes and colours).
         settle: The settle after a drop.
         max_speed: Speed (m/s) above which an object counts as blown up by the physics.
+        library: Objects random clutters are drawn from instead of random procedural ones of ``kinds`` (e.g. mesh
+            files or YCB models): the pool holds each of them once, in a seeded order, and repeats them up to
+            ``num_objects[1]`` when there are fewer (``size`` does not apply).
     """
 
     workspace: WorkspaceSpec
@@ -65,10 +68,17 @@ class ClutterPool:
     library_seed: int = 1234
     settle: SettleSpec = field(default_factory=SettleSpec)
     max_speed: float = 5.0
+    library: tuple[ObjectSpec, ...] | None = None
 
     def __post_init__(self):
         if self.layouts is not None:
             self.specs, self.layout_slots = shared_pool(self.layouts)
+        elif self.library is not None:
+            if not self.library:
+                raise ValueError("a clutter library needs at least one object")
+            order = np.random.default_rng(self.library_seed).permutation(len(self.library))
+            n = max(self.num_objects[1], len(self.library))
+            self.specs = [self.library[order[i % len(order)]] for i in range(n)]
         else:
             rng = np.random.default_rng(self.library_seed)
             self.specs = random_specs(rng, max(self.size, self.num_objects[1]), self.kinds)

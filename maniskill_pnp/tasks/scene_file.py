@@ -6,9 +6,8 @@ The file's extension chooses the syntax (``.yaml`` / ``.yml``: YAML, ``.json``: 
     frame: workspace             # "workspace" or "world"; required
     name: two_bars               # optional text
     description: two bars side by side   # optional text
-    settled: false               # optional; true: poses of objects at rest in a simulation (see below)
     objects:                     # one entry per object, at least one
-      - kind: cuboid             # one of the procedural kinds of objects.KINDS
+      - kind: cuboid             # one of the procedural kinds of objects.KINDS, or mesh
         size: [0.02, 0.045, 0.02]    # the kind's size values, metres (objects.SIZE_PARAMS)
         color: [0.15, 0.35, 0.85]    # optional RGB in 0..1 (default ObjectSpec's 0.8, 0.3, 0.2)
         position: [-0.0205, 0.0, 0.02]   # metres, of the centre of the object's bounding box
@@ -36,18 +35,30 @@ Orientation: exactly one of
   ``R = Rz(c) @ Ry(b) @ Rx(a)``, the same rotation as intrinsic ``"ZYX"`` with angles ``[c, b, a]``. The conventions
   are those of scipy's ``Rotation.from_euler``.
 
-``kind: mesh`` (objects from mesh files) is reserved: loading it raises "kind 'mesh' is not supported yet".
+Mesh objects (``kind: mesh``, :mod:`~maniskill_pnp.tasks.meshes`) take no ``size`` and no ``seed`` but::
+
+      - kind: mesh
+        file: parts/bracket.stl  # required: OBJ, STL, GLB or PLY; relative to the scene file's folder, or absolute
+        scale: 0.001             # optional: one factor or [sx, sy, sz] (default 1); here millimetres to metres
+        color: [0.6, 0.6, 0.65]  # optional, as above
+        texture: false           # optional: true shows the file's own materials and textures instead of color
+        density: 1000            # optional kg/m³ (default 1000)
+        collision: parts/bracket_parts.obj  # optional: ready-made convex parts (else computed and cached)
+        position: [0.0, 0.0, 0.02]   # the centre of the scaled mesh's bounding box
+        quaternion: [1.0, 0.0, 0.0, 0.0]
+
+:func:`save_scene` writes a mesh's path relative to the scene file's folder when the mesh lies in it (or below it),
+else absolute.
 
 Loading (:func:`load_scene`) checks the schema first, with errors that name the file, the object (``objects[i]``)
 and the field, then builds the :class:`~maniskill_pnp.tasks.objects.ObjectSpec` of every entry and runs
-:func:`~maniskill_pnp.tasks.clutter.validate_layout`: bounding boxes inside the workspace, above the table, not
-overlapping. That check works on bounding boxes, which tilted or piled objects at rest cross (a sphere's box dips into
-the table when it rolls, objects leaning on each other have overlapping boxes), so a file marked ``settled: true``
-(what :meth:`ClutterGraspEnv.export_scene <maniskill_pnp.tasks.clutter_grasp.ClutterGraspEnv.export_scene>` writes:
-the poses of an env's objects at rest) is only checked for centres in the workspace (over its square, at most 5 cm
-below the table top, as :func:`~maniskill_pnp.tasks.clutter.object_status` counts them); hand-edit such a file with
-care. :func:`save_scene` writes a layout. YAML files accept exponents without a dot (``5e-3``),
-unlike plain YAML 1.1.
+:func:`~maniskill_pnp.tasks.clutter.validate_layout` on the objects' collision shapes: inside the workspace, not below
+the table, no two interpenetrating by more than 1 mm, and objects that touch others (stacked, leaning, lying in a
+cradle) at rest in a short physics settle. The poses of objects at rest in a simulation (what
+:meth:`ClutterGraspEnv.export_scene <maniskill_pnp.tasks.clutter_grasp.ClutterGraspEnv.export_scene>` writes) pass it
+as they are, unless an object sticks out over the edge of the workspace square. Files of earlier versions may carry ``settled: true`` (then needed for exported scenes); the key is still
+read and ignored. :func:`save_scene` writes a layout. YAML files accept exponents without a dot (``5e-3``), unlike
+plain YAML 1.1.
 """
 
 from __future__ import annotations
@@ -65,7 +76,7 @@ import sapien
 import yaml
 
 from maniskill_pnp.tasks.clutter import as_pose, validate_layout
-from maniskill_pnp.tasks.objects import KINDS, SIZE_PARAMS, ObjectSpec
+from maniskill_pnp.tasks.objects import ALL_KINDS, DEFAULT_DENSITY, MESH_KIND, SIZE_PARAMS, ObjectSpec
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
 #: Version of the schema this module reads and writes (the file's ``format``).
@@ -75,11 +86,13 @@ FRAMES = ("workspace", "world")
 #: Extensions of the two syntaxes.
 YAML_SUFFIXES = (".yaml", ".yml")
 JSON_SUFFIXES = (".json",)
-#: Kinds a later change adds; the schema reserves them.
-RESERVED_KINDS = ("mesh",)
-#: Keys of the top level and of an object entry.
+#: Keys of the top level and of an object entry (``settled`` is read and ignored: files of earlier versions have it).
 TOP_KEYS = ("format", "frame", "name", "description", "settled", "objects")
-OBJECT_KEYS = ("kind", "size", "color", "seed", "position", "quaternion", "euler")
+OBJECT_KEYS = ("kind", "size", "color", "seed", "file", "scale", "texture", "density", "collision", "position", "quaternion",
+               "euler")
+#: Keys of the procedural kinds only, and of mesh objects only.
+PROCEDURAL_KEYS = ("size", "seed")
+MESH_KEYS = ("file", "scale", "texture", "density", "collision")
 EULER_KEYS = ("convention", "angles", "degrees")
 #: Decimals written by :func:`save_scene`: positions and colours (1 µm), quaternions and radians, degrees.
 POSITION_DECIMALS, QUATERNION_DECIMALS, DEGREE_DECIMALS = 6, 9, 6
@@ -106,14 +119,12 @@ class Scene:
     frame: str
     name: str | None = None
     description: str | None = None
-    settled: bool = False
-    """The poses are those of objects at rest in a simulation (checked more loosely, see the module docstring)."""
     source: str = "<scene>"
     """Where it came from (the file's path), for error messages."""
 
     def layout(self, workspace: WorkspaceSpec) -> list[tuple[ObjectSpec, sapien.Pose]]:
         """The scene as a layout in ``workspace`` (world poses), validated by
-        :func:`~maniskill_pnp.tasks.clutter.validate_layout` (``settled`` as the file says).
+        :func:`~maniskill_pnp.tasks.clutter.validate_layout`.
 
         Raises:
             SceneFileError: the layout does not fit ``workspace`` (the message names the file and the object).
@@ -121,9 +132,10 @@ class Scene:
         origin = frame_origin(self.frame, workspace)
         layout = [(o.spec, sapien.Pose(p=np.asarray(o.position) + origin, q=np.asarray(o.quaternion))) for o in self.objects]
         try:
-            return validate_layout(layout, workspace, settled=self.settled)
-        except ValueError as e:  # validate_layout's "layout object i" is the file's objects[i]
-            msg = re.sub(r"and (\d+) \(", r"and objects[\1] (", re.sub(r"layout objects? (\d+)", r"objects[\1]", str(e)))
+            return validate_layout(layout, workspace)
+        except ValueError as e:  # validate_layout's "[layout] object(s) i (kind)" and "and j (kind)" are the file's objects[i]
+            msg = re.sub(r"(?:layout )?\bobjects? (\d+) \(", r"objects[\1] (", str(e))
+            msg = re.sub(r"\band (\d+) \(", r"and objects[\1] (", msg)
             raise SceneFileError(f"{self.source}: {msg}") from None
 
 
@@ -257,19 +269,80 @@ def _orientation(entry: dict, where: str) -> tuple[float, float, float, float]:
     return tuple(float(v) for v in euler_to_quat(angles, convention, degrees))
 
 
-def _object(entry, i: int, source: str) -> SceneObject:
+def _path(value, where: str, base_dir: Path) -> Path:
+    if not isinstance(value, str) or not value.strip():
+        raise SceneFileError(f"{where}: must be a path (text) to an OBJ, STL, GLB or PLY file, relative to the scene file's "
+                             f"folder or absolute, got {value!r}")
+    path = Path(os.path.expanduser(value))
+    return path if path.is_absolute() else base_dir / path
+
+
+def _mesh_spec(entry: dict, where: str, base_dir: Path, color) -> ObjectSpec:
+    """The spec of a ``kind: mesh`` entry (see the module docstring)."""
+    from maniskill_pnp.tasks.meshes import resolve_mesh_path
+
+    for key in PROCEDURAL_KEYS:
+        if key in entry:
+            raise SceneFileError(f"{where}.{key}: mesh objects take file and scale (and optionally texture, density, "
+                                 f"collision), not {key}")
+    if "file" not in entry:
+        raise SceneFileError(f"{where}.file: missing (path of an OBJ, STL, GLB or PLY file, relative to the scene file's "
+                             "folder or absolute)")
+    files = {}
+    for key in ("file", "collision"):
+        if key in entry:
+            try:
+                files[key] = str(resolve_mesh_path(_path(entry[key], f"{where}.{key}", base_dir)))
+            except ValueError as e:
+                raise SceneFileError(e if isinstance(e, SceneFileError) else f"{where}.{key}: {e}") from None
+    scale = entry.get("scale", 1.0)
+    if _is_number(scale):
+        scale = (float(scale),) * 3
+    else:
+        scale = _numbers(scale, 3, f"{where}.scale", "one factor or [sx, sy, sz]")
+    if min(scale) <= 0:
+        raise SceneFileError(f"{where}.scale: must be positive, got {list(scale)}")
+    texture = entry.get("texture", False)
+    if not isinstance(texture, bool):
+        raise SceneFileError(f"{where}.texture: must be true or false, got {texture!r}")
+    density = entry.get("density", DEFAULT_DENSITY)
+    if not _is_number(density) or density <= 0:
+        raise SceneFileError(f"{where}.density: must be a positive number (kg/m³), got {density!r}")
+    try:
+        return ObjectSpec(MESH_KIND, (), color, file=files["file"], scale=scale, texture=texture, density=float(density),
+                          collision=files.get("collision"))
+    except ValueError as e:
+        raise SceneFileError(f"{where} ({MESH_KIND}): {e}") from None
+
+
+def _object(entry, i: int, source: str, base_dir: Path) -> SceneObject:
     where = f"{source}: objects[{i}]"
     if not isinstance(entry, dict):
         raise SceneFileError(f"{where}: must be a mapping with kind, size, position and an orientation, got {entry!r}")
     _check_keys(entry, OBJECT_KEYS, where)
     if "kind" not in entry:
-        raise SceneFileError(f"{where}.kind: missing; valid kinds: {list(KINDS)}")
+        raise SceneFileError(f"{where}.kind: missing; valid kinds: {list(ALL_KINDS)}")
     kind = entry["kind"]
-    if kind in RESERVED_KINDS:
-        # Objects from mesh files: a later change reads their fields here and builds their spec.
-        raise SceneFileError(f"{where}.kind: kind {kind!r} is not supported yet; valid kinds: {list(KINDS)}")
-    if kind not in KINDS:
-        raise SceneFileError(f"{where}.kind: unknown kind {kind!r}; valid kinds: {list(KINDS)}")
+    if kind not in ALL_KINDS:
+        raise SceneFileError(f"{where}.kind: unknown kind {kind!r}; valid kinds: {list(ALL_KINDS)}")
+    color = ObjectSpec.color if "color" not in entry else _numbers(entry["color"], 3, f"{where}.color", "RGB in 0..1")
+    if not all(0.0 <= c <= 1.0 for c in color):
+        raise SceneFileError(f"{where}.color: must be RGB in 0..1, got {list(color)}")
+    if kind == MESH_KIND:
+        spec = _mesh_spec(entry, where, base_dir, color)
+    else:
+        spec = _procedural_spec(entry, where, kind, color)
+    if "position" not in entry:
+        raise SceneFileError(f"{where}.position: missing ([x, y, z] in metres)")
+    position = _numbers(entry["position"], 3, f"{where}.position", "[x, y, z] in metres")
+    quaternion = _orientation(entry, where)
+    return SceneObject(spec, position, quaternion)
+
+
+def _procedural_spec(entry: dict, where: str, kind: str, color) -> ObjectSpec:
+    for key in MESH_KEYS:
+        if key in entry:
+            raise SceneFileError(f"{where}.{key}: only mesh objects take {key} ({kind} objects take size)")
     params = SIZE_PARAMS[kind]
     if "size" not in entry:
         raise SceneFileError(f"{where}.size: missing; {kind} takes {len(params)} values {list(params)} (metres)")
@@ -278,25 +351,20 @@ def _object(entry, i: int, source: str) -> SceneObject:
         got = f"{len(size)} values" if isinstance(size, (list, tuple)) else repr(size)
         raise SceneFileError(f"{where}.size: {kind} takes {len(params)} values {list(params)} (metres), got {got}")
     size = _numbers(size, len(params), f"{where}.size", f"{list(params)} in metres")
-    color = ObjectSpec.color if "color" not in entry else _numbers(entry["color"], 3, f"{where}.color", "RGB in 0..1")
-    if not all(0.0 <= c <= 1.0 for c in color):
-        raise SceneFileError(f"{where}.color: must be RGB in 0..1, got {list(color)}")
     seed = entry.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise SceneFileError(f"{where}.seed: must be an int >= 0, got {seed!r}")
-    if "position" not in entry:
-        raise SceneFileError(f"{where}.position: missing ([x, y, z] in metres)")
-    position = _numbers(entry["position"], 3, f"{where}.position", "[x, y, z] in metres")
-    quaternion = _orientation(entry, where)
     try:
-        spec = ObjectSpec(kind, size, color, seed)
+        return ObjectSpec(kind, size, color, seed)
     except ValueError as e:
         raise SceneFileError(f"{where} ({kind}): {e}") from None
-    return SceneObject(spec, position, quaternion)
 
 
-def parse_scene(data, source: str = "<scene>") -> Scene:
+def parse_scene(data, source: str = "<scene>", base_dir=None) -> Scene:
     """A :class:`Scene` from the parsed contents of a scene file (a dict), checked against the schema.
+
+    Args:
+        base_dir: The folder relative mesh paths start from (the scene file's; default the working directory).
 
     Raises:
         SceneFileError: the first problem found, naming ``source``, the object and the field.
@@ -316,14 +384,13 @@ def parse_scene(data, source: str = "<scene>") -> Scene:
     for key in ("name", "description"):
         if data.get(key) is not None and not isinstance(data[key], str):
             raise SceneFileError(f"{source}: {key}: must be text, got {data[key]!r}")
-    settled = data.get("settled", False)
-    if not isinstance(settled, bool):
-        raise SceneFileError(f"{source}: settled: must be true or false, got {settled!r}")
+    # "settled" (files of earlier versions) is ignored: every layout is checked by its shapes
     objects = data.get("objects")
     if not isinstance(objects, list) or not objects:
         raise SceneFileError(f"{source}: objects: must be a non-empty list of objects, got {objects!r}")
-    return Scene(tuple(_object(entry, i, source) for i, entry in enumerate(objects)), frame, data.get("name"),
-                 data.get("description"), settled, source)
+    base = Path.cwd() if base_dir is None else Path(base_dir)
+    return Scene(tuple(_object(entry, i, source, base) for i, entry in enumerate(objects)), frame, data.get("name"),
+                 data.get("description"), source)
 
 
 def _syntax(path: Path) -> str:
@@ -351,7 +418,7 @@ def read_scene(path) -> Scene:
         data = json.loads(text) if syntax == "json" else yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader)
     except (json.JSONDecodeError, yaml.YAMLError) as e:
         raise SceneFileError(f"{path}: not valid {syntax.upper()}: {e}") from None
-    return parse_scene(data, str(path))
+    return parse_scene(data, str(path), base_dir=path.resolve().parent)
 
 
 def load_scene(path, workspace: WorkspaceSpec) -> list[tuple[ObjectSpec, sapien.Pose]]:
@@ -380,14 +447,26 @@ def _round(values, decimals: int) -> list[float]:
     return [float(round(float(v), decimals)) + 0.0 for v in values]  # + 0.0: no "-0.0"
 
 
+def _mesh_path(file: str, base_dir: Path | None) -> str:
+    """A mesh's path as a scene file in ``base_dir`` writes it: relative when it lies in that folder, else absolute."""
+    path = Path(file)
+    if base_dir is not None:
+        try:
+            return path.relative_to(Path(base_dir).resolve()).as_posix()
+        except ValueError:
+            pass
+    return str(path)
+
+
 def scene_data(layout, workspace: WorkspaceSpec, frame: str = "workspace", name: str | None = None,
-               description: str | None = None, orientation: str = "quaternion", settled: bool = False) -> dict:
+               description: str | None = None, orientation: str = "quaternion", base_dir=None) -> dict:
     """The contents of a scene file of ``layout`` (``(ObjectSpec, pose)`` entries, world poses as for
     :func:`~maniskill_pnp.tasks.clutter.as_pose`), positions in ``frame``.
 
     Args:
         orientation: ``"quaternion"`` (exact, w >= 0) or ``"euler"`` (extrinsic ``"xyz"`` in degrees, easy to edit).
-        settled: Mark the file ``settled: true`` (poses of objects at rest in a simulation).
+        base_dir: The scene file's folder: mesh files inside it are written relative to it (others, and all without
+            ``base_dir``, as absolute paths).
     """
     if orientation not in ("quaternion", "euler"):
         raise ValueError(f"orientation must be 'quaternion' or 'euler', got {orientation!r}")
@@ -397,14 +476,23 @@ def scene_data(layout, workspace: WorkspaceSpec, frame: str = "workspace", name:
         data["name"] = str(name)
     if description is not None:
         data["description"] = str(description)
-    if settled:
-        data["settled"] = True
     objects = []
     for i, entry in enumerate(layout):
         if not isinstance(entry, (tuple, list)) or len(entry) != 2 or not isinstance(entry[0], ObjectSpec):
             raise ValueError(f"layout entry {i} must be (ObjectSpec, pose), got {entry!r}")
         spec, pose = entry[0], as_pose(entry[1])
-        obj: dict = dict(kind=spec.kind, size=list(spec.size), color=_round(spec.color, POSITION_DECIMALS))
+        if spec.kind == MESH_KIND:
+            scale = spec.scale[0] if len(set(spec.scale)) == 1 else list(spec.scale)
+            obj: dict = dict(kind=spec.kind, file=_mesh_path(spec.file, base_dir), scale=scale,
+                             color=_round(spec.color, POSITION_DECIMALS))
+            if spec.texture:
+                obj["texture"] = True
+            if spec.density != DEFAULT_DENSITY:
+                obj["density"] = spec.density
+            if spec.collision is not None:
+                obj["collision"] = _mesh_path(spec.collision, base_dir)
+        else:
+            obj = dict(kind=spec.kind, size=list(spec.size), color=_round(spec.color, POSITION_DECIMALS))
         if spec.kind == "hull":
             obj["seed"] = int(spec.seed)
         obj["position"] = _round(np.asarray(pose.p, dtype=np.float64) - origin, POSITION_DECIMALS)
@@ -421,15 +509,15 @@ def scene_data(layout, workspace: WorkspaceSpec, frame: str = "workspace", name:
 
 
 def save_scene(path, layout, workspace: WorkspaceSpec, frame: str = "workspace", name: str | None = None,
-               description: str | None = None, orientation: str = "quaternion", settled: bool = False,
-               validate: bool = True) -> Path:
+               description: str | None = None, orientation: str = "quaternion", validate: bool = True) -> Path:
     """Write ``layout`` (``(ObjectSpec, world pose)`` entries) as the scene file ``path`` (YAML or JSON by its
-    extension); see :func:`scene_data` for the arguments. Sizes are written exactly; positions and colours to 1 µm,
-    quaternions to 1e-9, Euler angles to 1e-6 degrees.
+    extension); see :func:`scene_data` for the arguments. Sizes and scales are written exactly; positions and colours
+    to 1 µm, quaternions to 1e-9, Euler angles to 1e-6 degrees; mesh files relative to ``path``'s folder when they lie
+    in it, else as absolute paths.
 
     Args:
-        validate: First check the layout with :func:`~maniskill_pnp.tasks.clutter.validate_layout` (``settled`` as
-            given), so no file is written that would not load.
+        validate: First check the layout with :func:`~maniskill_pnp.tasks.clutter.validate_layout`, so no file is
+            written that would not load.
 
     Returns:
         ``path``.
@@ -440,8 +528,8 @@ def save_scene(path, layout, workspace: WorkspaceSpec, frame: str = "workspace",
     path = Path(path)
     syntax = _syntax(path)
     if validate:
-        validate_layout(layout, workspace, settled=settled)
-    data = scene_data(layout, workspace, frame, name, description, orientation, settled)
+        validate_layout(layout, workspace)
+    data = scene_data(layout, workspace, frame, name, description, orientation, base_dir=path.resolve().parent)
     if syntax == "json":
         text = json.dumps(data, indent=2) + "\n"
     else:
