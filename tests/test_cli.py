@@ -430,7 +430,7 @@ def test_plot_clutter(jobs):
     ran = jobs["plot-clutter"].ok()
     _png(jobs.out / "clutter_curves.png", 200, 300)
     summary = ran.json_stdout()
-    assert set(summary) == {"tiny"} and summary["tiny"]["actions"] == 2
+    assert set(summary) == {"tiny"} and summary["tiny"]["actions"] == 2 and summary["tiny"]["minutes"] > 0
     for window in ("first", "last"):
         assert set(summary["tiny"][window]) == {"grasp_success", "success_rate", "actions"}
         assert all(math.isfinite(v) for v in summary["tiny"][window].values())

@@ -221,8 +221,14 @@ def test_action_log_survives_a_resume_and_feeds_the_curves(tmp_path):
     c = run_curves(tmp_path, window=4)
     assert c["first"] == dict(grasp_success=0.5, success_rate=0.25, actions=4)
     assert c["last"] == dict(grasp_success=0.75, success_rate=0.75, actions=4)
+    assert c["minutes"] is None  # no time log
+    # the CSV logger's time/wall_s: the first session logged steps 2 and 4, the resumed one (clock from 0) 6 and 8
+    (tmp_path / "scalars" / "time").mkdir(parents=True)
+    (tmp_path / "scalars" / "time" / "wall_s.csv").write_text("2,60\n4,120\n6,30\n8,90\n")
+    minutes = run_curves(tmp_path, window=4)["minutes"]
+    np.testing.assert_allclose(minutes, [0.5, 1, 1.5, 2, 2.25, 2.5, 3, 3.5])
     summary = plot_training_curves({"run": tmp_path}, tmp_path / "curves.png", window=4)
-    assert summary["run"]["last"]["success_rate"] == 0.75
+    assert summary["run"]["last"]["success_rate"] == 0.75 and summary["run"]["minutes"] == 3.5
     import matplotlib.image
     assert matplotlib.image.imread(tmp_path / "curves.png").shape[2] in (3, 4)
 
