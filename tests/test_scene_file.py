@@ -30,6 +30,8 @@ from maniskill_pnp.tasks.workspace import WorkspaceSpec
 CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
 WS = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=4)
 REFERENCE = Path(__file__).parent / "data" / "complicated_layouts_64px.npz"
+#: The example scenes that ship in the repository (mesh_parts.yaml, its meshes and their generator).
+EXAMPLE_SCENES = Path(__file__).parent.parent / "examples" / "scenes"
 
 #: A valid scene: a cube and a bar in the workspace frame, the bar turned 90° about z.
 VALID = dict(
@@ -293,6 +295,44 @@ def test_shipped_locking_layout_files():
         assert np.isnan(want[len(layout):]).all()
         got = np.array([[*pose.p, *pose.q] for _, pose in layout])
         assert np.abs(got - want[: len(layout)]).max() < 1e-6, path.name  # the poses of the former Python definitions
+
+
+def test_shipped_mesh_example_scene(tmp_path):
+    """``examples/scenes/mesh_parts.yaml`` loads and validates, its meshes are small and ``make_meshes.py`` still makes
+    them: regenerated into ``tmp_path``, each has the shipped file's vertices (to 1e-6 of its size), faces and volume."""
+    import importlib.util
+
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    from maniskill_pnp.tasks.layout_check import check_layout
+
+    spec = importlib.util.spec_from_file_location("example_make_meshes", EXAMPLE_SCENES / "make_meshes.py")
+    make_meshes = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(make_meshes)
+    shipped_dir = EXAMPLE_SCENES / "meshes"
+    assert sorted(p.name for p in shipped_dir.iterdir()) == sorted(make_meshes.MESH_FILES)
+    for new in make_meshes.make_meshes(tmp_path / "meshes"):
+        shipped = shipped_dir / new.name
+        assert shipped.stat().st_size < 100_000, shipped.name
+        a, b = (trimesh.load(str(p), force="mesh") for p in (shipped, new))
+        tol = 1e-6 * float(np.max(a.extents))
+        assert len(a.vertices) == len(b.vertices) and len(a.faces) == len(b.faces), new.name
+        assert cKDTree(a.vertices).query(b.vertices)[0].max() <= tol, new.name
+        assert cKDTree(b.vertices).query(a.vertices)[0].max() <= tol, new.name
+        assert a.is_watertight and abs(a.volume - b.volume) <= 1e-6 * a.volume, new.name
+
+    scene = read_scene(EXAMPLE_SCENES / "mesh_parts.yaml")
+    assert scene.name == "mesh_parts" and scene.description and scene.frame == "workspace"
+    ws = WorkspaceSpec()
+    layout = load_scene(EXAMPLE_SCENES / "mesh_parts.yaml", ws)  # every object fits the gripper; the layout validates
+    assert [s.label for s, _ in layout] == ["mesh channel_bracket.stl", "cuboid", "mesh ring.obj", "cylinder", "arch",
+                                            "cylinder", "mesh flanged_bushing.ply"]
+    assert all(Path(s.file).parent == shipped_dir.resolve() for s, _ in layout if s.kind == "mesh")
+    assert layout[0][0].scale == (0.001,) * 3 and np.allclose(layout[0][0].extents, [0.06, 0.04, 0.034])
+    check = check_layout(layout, ws)
+    assert [(i, j) for i, j, _ in check.contacts] == [(0, 1)]  # the block rests on the channel's base plate
+    assert np.nanmax(check.displacement) < 1e-3
 
 
 # ----------------------------------------------------------------------------- envs
