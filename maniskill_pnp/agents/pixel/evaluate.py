@@ -74,7 +74,7 @@ MAX_FAILURE_RUN = 10
 #: Names of the metrics, in table order (``docs/metrics.md``).
 METRICS = ("success_rate", "grasp_success", "completion", "action_efficiency")
 #: Columns of the per-episode table.
-EPISODE_COLUMNS = ("scenario", "seed", "objects", "actions", "grasp_attempts", "grasps", "placed", "lost", "cleared",
+EPISODE_COLUMNS = ("scenario", "seed", "objects", "dropped_out", "actions", "grasp_attempts", "grasps", "placed", "lost", "cleared",
                    "max_failure_run", "success_rate", "grasp_success", "faults", "layout")
 #: Columns of the per-scenario table (Table IX).
 SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS, *(f"{m}_se" for m in METRICS), "faults_per_100_actions")
@@ -314,7 +314,9 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         The episode record (``EPISODE_COLUMNS``) and the first decision: ``{"color", "depth", "maps", "action"}``.
     """
     obs, info = env.reset(seed=seed, options=None if layout_index is None else {"layout_index": layout_index})
-    objects = int(info["num_objects"])
+    # the objects the episode starts with: those in the workspace once the dropped clutter has settled (a dense drop
+    # can roll some off the square; they are counted apart, in dropped_out, and not in lost)
+    objects, dropped_out = int(info["objects_remaining"]), int(info["lost_objects"])
     if actions_per_object is not None:
         cap = max(1, math.floor(actions_per_object * objects))
         max_steps = cap if max_steps is None else min(max_steps, cap)
@@ -338,8 +340,8 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
             on_step(info)
     t = tally
     record = dict(
-        scenario=scenario, seed=seed, objects=objects, actions=t.actions, grasp_attempts=t.grasp_attempts, grasps=t.grasps,
-        placed=t.placed, lost=int(info["lost_objects"]), cleared=bool(info["success"].item()),
+        scenario=scenario, seed=seed, objects=objects, dropped_out=dropped_out, actions=t.actions,
+        grasp_attempts=t.grasp_attempts, grasps=t.grasps, placed=t.placed, lost=int(info["lost_objects"]) - dropped_out, cleared=bool(info["success"].item()),
         max_failure_run=t.max_failure_run, success_rate=t.placed / t.actions,
         grasp_success=t.grasps / t.grasp_attempts if t.grasp_attempts else 0.0, faults=t.faults, layout=layout,
     )
