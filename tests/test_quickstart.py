@@ -41,10 +41,12 @@ def test_quickstart_names_a_missing_agent(tmp_path):
         QuickstartConfig(conveyor_steps=0)
 
 
-def test_bundled_agent_loads_as_a_three_primitive_greedy_policy():
-    path = BUNDLED_AGENTS["gs-cpu-small"]
+@pytest.mark.parametrize("name, backbone", [("gs-cpu-equi", "equivariant"), ("gs-cpu-small", "small")])
+def test_bundled_agent_loads_as_a_three_primitive_greedy_policy(name, backbone):
+    path = BUNDLED_AGENTS[name]
     actor, cfg, counters = load_policy(path, torch.device("cpu"))
     assert cfg.task == "grasp_slide" and actor.q_network.primitives == ("grasp", "left_slide", "right_slide")
+    assert cfg.preset == name and cfg.backbone == backbone
     assert counters["steps"] > 0
     assert path.stat().st_size < 16 * 2**20  # weights only, float16
 
