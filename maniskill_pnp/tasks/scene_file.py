@@ -52,12 +52,12 @@ else absolute.
 
 Loading (:func:`load_scene`) checks the schema first, with errors that name the file, the object (``objects[i]``)
 and the field, then builds the :class:`~maniskill_pnp.tasks.objects.ObjectSpec` of every entry and runs
-:func:`~maniskill_pnp.tasks.clutter.validate_layout` on the objects' collision shapes: inside the workspace, not below
-the table, no two interpenetrating by more than 1 mm, and objects that touch others (stacked, leaning, lying in a
-cradle) at rest in a short physics settle. The poses of objects at rest in a simulation (what
+:func:`~maniskill_pnp.tasks.clutter.validate_layout` on the objects' collision shapes: centres over the workspace
+square, nothing below the table, no two interpenetrating by more than 1 mm, and objects that touch others (stacked,
+leaning, lying in a cradle) at rest in a short physics settle. The poses of objects at rest in a simulation (what
 :meth:`ClutterGraspEnv.export_scene <maniskill_pnp.tasks.clutter_grasp.ClutterGraspEnv.export_scene>` writes) pass it
-as they are, unless an object sticks out over the edge of the workspace square. Files of earlier versions may carry ``settled: true`` (then needed for exported scenes); the key is still
-read and ignored. :func:`save_scene` writes a layout. YAML files accept exponents without a dot (``5e-3``), unlike
+as they are. Files of earlier versions may carry ``settled: true`` (then needed for exported scenes); the key is
+still read and ignored. :func:`save_scene` writes a layout. YAML files accept exponents without a dot (``5e-3``), unlike
 plain YAML 1.1.
 """
 
