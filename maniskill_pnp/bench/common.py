@@ -31,6 +31,14 @@ def machine_info() -> dict:
     }
 
 
+def print_machine() -> None:
+    """One line of machine info: platform, CPUs, GPU and the versions of torch, torchrl, mani-skill and sapien."""
+    m = machine_info()
+    v = m["versions"]
+    print(f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}; torch {v['torch']}, torchrl {v['torchrl']}, "
+          f"mani-skill {v['mani-skill']}, sapien {v['sapien']}")
+
+
 def write_report(path: Path, name: str, settings: dict, results: dict) -> Path:
     """Write ``{"benchmark", "machine", "settings", "results"}`` as JSON and return the path."""
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -35,19 +35,13 @@ import torch
 from tqdm import tqdm
 
 from maniskill_pnp.agents.run_io import require_positive
-from maniskill_pnp.bench.common import machine_info, write_report
+from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.runtime import default_backends
 
 #: Tasks the collection benchmark can run, with the recipe that builds them.
 COLLECTION_TASKS = ("conveyor", "clutter", "clutter-slide")
 #: Parts of a decision in the breakdown table, in pipeline order.
 DECISION_PARTS = ("render", "heightmap", "network", "planning", "execution", "other")
-
-
-def _print_machine() -> None:
-    m = machine_info()
-    print(f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}; torch {m['versions']['torch']}, "
-          f"torchrl {m['versions']['torchrl']}, mani-skill {m['versions']['mani-skill']}, sapien {m['versions']['sapien']}")
 
 
 def _clutter_config(preset: str, **overrides):
@@ -164,7 +158,7 @@ def run_env_overhead(cfg: EnvOverheadBenchConfig) -> dict:
         ratio_whole_step_vs_env_step=ours["step_sim_steps_per_s"] / bare["env_step_sim_steps_per_s"],
     )
     write_report(Path(cfg.out), "env-overhead", {k: str(v) for k, v in asdict(cfg).items()}, results)
-    _print_machine()
+    print_machine()
     print(f"ClutterGrasp-v1 ({cfg.num_objects} objects, {cfg.heightmap_size} px): {ours['actions']} primitives, "
           f"{ours['grasps']} grasps, {ours['sim_steps']} sim steps")
     print(f"  sim steps/s while executing {ours['execution_sim_steps_per_s']:.0f}, over the whole primitive with "
@@ -270,7 +264,7 @@ def run_collection(cfg: CollectionBenchConfig) -> dict:
         row["ratio_vs_first"] = row["transitions_per_s"] / base
     results = dict(task=cfg.task, rows=rows)
     write_report(Path(cfg.out), "collection", {k: str(v) for k, v in asdict(cfg).items()}, results)
-    _print_machine()
+    print_machine()
     print(f"collection of {cfg.task} (process backend, ε = 1, {cfg.frames} timed frames after {cfg.warmup} batches):")
     for row in rows:
         print(f"  {row['workers']} worker(s): {row['transitions_per_s']:.2f} transitions/s "
@@ -346,7 +340,7 @@ def run_decision_breakdown(cfg: DecisionBreakdownBenchConfig) -> dict:
     out = Path(cfg.out)
     write_report(out, "decision-breakdown", {k: str(v) for k, v in asdict(cfg).items()}, results)
     out.with_suffix(".md").write_text(table + "\n")
-    _print_machine()
+    print_machine()
     print(f"{cfg.preset}: {ccfg.heightmap_size} px, {ccfg.num_rotations} rotations, {len(ccfg.primitives)} primitives, "
           f"{cfg.num_objects} objects; {cfg.decisions} greedy decisions, {results['decisions_per_s']:.2f} decisions/s")
     print(table)
@@ -426,7 +420,7 @@ def run_batched_decisions(cfg: BatchedDecisionsBenchConfig) -> dict:
     out = Path(cfg.out)
     write_report(out, "batched-decisions", {k: str(v) for k, v in asdict(cfg).items()}, results)
     out.with_suffix(".md").write_text(table + "\n")
-    _print_machine()
+    print_machine()
     print(f"{cfg.preset}: {ccfg.heightmap_size} px, {ccfg.num_rotations} rotations, {len(ccfg.primitives)} primitives, "
           f"{cfg.num_objects} objects; {cfg.steps} timed steps per row")
     print(table)

@@ -23,7 +23,7 @@ from pathlib import Path
 import yaml
 
 from maniskill_pnp.agents.run_io import require_positive
-from maniskill_pnp.bench.common import machine_info, write_report
+from maniskill_pnp.bench.common import print_machine, write_report
 
 DEFAULT_VARIANTS = ("gs-cpu-small", "gs-cpu-equi,collector=process,sync=false")
 
@@ -92,9 +92,7 @@ def run_variant(spec: str, cfg: TrainingThroughputBenchConfig, out: Path) -> dic
 
 def run(cfg: TrainingThroughputBenchConfig) -> dict:
     """Run every variant ``repeats`` times in turn; print the table and write the JSON report."""
-    m = machine_info()
-    print(f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}; torch {m['versions']['torch']}, "
-          f"torchrl {m['versions']['torchrl']}")
+    print_machine()
     print(f"training throughput: {len(cfg.variants)} variants x {cfg.repeats} turns of {cfg.minutes:g} min, "
           f"{cfg.updates_per_step} updates per action")
     turns = {spec: [] for spec in cfg.variants}
