@@ -59,7 +59,7 @@ print("small sizes:", SMALL, "| outputs in", OUT)
 #: Shared by every notebook: matplotlib figures shown with display() and saved into OUT.
 SHOW = '''
 import matplotlib.pyplot as plt
-from IPython.display import Image, Markdown, display
+from IPython.display import Image, display
 
 
 def show(fig, name: str) -> None:
@@ -367,6 +367,7 @@ LOG_INTERVAL = 6 if SMALL else 30  # steps between two points of the learning cu
 ''', '''
 import numpy as np
 import torch
+from IPython.display import Markdown
 
 from maniskill_pnp.agents.tabular.evaluate import EvalConfig, read_curve, run as evaluate
 from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, load_qtable, main as train
@@ -517,8 +518,8 @@ EVAL_MAX_STEPS = 2 if SMALL else 8  # actions per evaluation scene at most
 ''', '''
 import dataclasses
 
-import numpy as np
 import torch
+from IPython.display import Markdown
 
 from maniskill_pnp.agents.pixel.config import ClutterConfig
 from maniskill_pnp.agents.pixel.curves import plot_training_curves

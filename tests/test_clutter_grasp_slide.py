@@ -10,7 +10,7 @@ import torch
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
 from maniskill_pnp.tasks import TASK_IDS, ClutterGraspSlideEnv
-from maniskill_pnp.tasks.clutter import density_range, validate_layout
+from maniskill_pnp.tasks.clutter import density_range, random_specs, sample_packed, validate_layout
 from maniskill_pnp.tasks.clutter_grasp_slide import REWARD_SCHEMES, change_threshold, heightmap_changed
 from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
 from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
@@ -234,3 +234,54 @@ def test_density_presets_accept_short_and_long_names():
     assert density_range("medium") == (15, 20)
     assert density_range("max") == density_range("maximum") == (25, 30)
     assert density_range("complicated") == (3, 7)
+
+
+def packed_neighbours(specs, poses) -> list[int]:
+    """Per object, how many others stand beside it with the same yaw, 1-3 mm apart along one side (footprints
+    overlapping along the other)."""
+    out = []
+    for i, (si, pi) in enumerate(zip(specs, poses)):
+        count = 0
+        for j, (sj, pj) in enumerate(zip(specs, poses)):
+            ri, rj = pi.to_transformation_matrix()[:3, :3], pj.to_transformation_matrix()[:3, :3]
+            if i == j or not np.allclose(ri, rj, atol=1e-6):
+                continue
+            d = np.abs(ri.T @ (pj.p - pi.p))[:2]
+            reach = (si.extents[:2] + sj.extents[:2]) / 2
+            count += any(0.001 - 1e-6 <= d[k] - reach[k] <= 0.003 + 1e-6 and d[1 - k] < reach[1 - k] for k in (0, 1))
+        out.append(count)
+    return out
+
+
+def test_packed_clusters_stand_side_by_side_millimetres_apart():
+    rng = np.random.default_rng(0)
+    specs = random_specs(rng, 12)
+    poses = sample_packed(np.random.default_rng(1), specs, WS)
+    assert [tuple(p.p) for p in poses] == [tuple(p.p) for p in sample_packed(np.random.default_rng(1), specs, WS)]
+    neighbours = packed_neighbours(specs, poses)
+    assert sum(n == 0 for n in neighbours) <= 1, neighbours  # a last cluster of one object may stand alone
+    (x0, x1), (y0, y1) = WS.spawn_bounds
+    for spec, pose in zip(specs, poses):
+        assert x0 <= pose.p[0] <= x1 and y0 <= pose.p[1] <= y1
+        assert pose.p[2] == pytest.approx(WS.table_z + spec.extents[2] / 2 + 0.002)
+    with pytest.raises(ValueError, match="cluster_size"):
+        sample_packed(rng, specs, WS, cluster_size=(0, 3))
+    with pytest.raises(ValueError, match="could not pack"):
+        sample_packed(rng, random_specs(rng, 200), WS)
+
+
+def test_packed_fraction_packs_that_share_of_episodes_and_the_piles_validate():
+    e = gym.make("ClutterGraspSlide-v1", workspace=WS, num_objects=6, packed_fraction=0.5, **CPU)
+    try:
+        u = e.unwrapped
+        packed = 0
+        for seed in range(6):
+            e.reset(seed=seed)
+            packed += bool(u.clutter.packed[0])
+            validate_layout(u.clutter.workspace_layout(0), WS)  # at rest, no two interpenetrating
+        assert 0 < packed < 6
+    finally:
+        e.close()
+    for bad, match in ((1.5, "packed_fraction"), (0.5, "not with layout")):
+        with pytest.raises(ValueError, match=match):
+            gym.make("ClutterGraspSlide-v1", workspace=WS, packed_fraction=bad, layout=TWO_CUBES if bad == 0.5 else None, **CPU)

@@ -11,7 +11,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from maniskill_pnp.agents.pixel.loss import PixelDQNLoss
 from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
-from maniskill_pnp.agents.pixel.policy import PrimitiveExploreMask, make_pixel_policy
+from maniskill_pnp.agents.pixel.policy import GreedyPixelActor, PrimitiveExploreMask, make_pixel_policy
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 
 H = W = 8
@@ -192,3 +192,22 @@ def test_enabled_restricts_to_grasps_and_no_material_test_allows_all_pixels():
     assert empty[0].all() and empty[1:].sum() == 0
     with pytest.raises(ValueError):
         HeightmapActionMask(prims, R, enabled=("push",))
+
+
+def test_slide_margin_keeps_a_grasp_unless_a_slide_beats_it_by_more():
+    layout = PixelActionLayout(3, R, H, W)
+    maps = torch.zeros(1, *layout.shape)
+    maps[0, 0, 1, 3, 5] = 0.6  # the best grasp
+    maps[0, 2, 0, 2, 2] = 0.8  # a slide 0.2 above it
+    greedy = lambda margins: make_pixel_policy(FixedMaps(maps), Categorical(layout.size, shape=(1,)), eps_init=0.0,  # noqa: E731
+                                               eps_end=0.0, annealing_num_steps=1, primitive_margins=margins)[0]
+    for margins, chosen in ((None, (2, 0, 2, 2)), ((0.0, 0.1, 0.1), (2, 0, 2, 2)), ((0.0, 0.3, 0.3), (0, 1, 3, 5))):
+        out = greedy(margins)(heightmap_td(1))
+        assert layout.decode(int(out["action"][0])) == chosen
+        torch.testing.assert_close(out["action_value"], maps.reshape(1, -1))  # the values stay the network's
+
+
+@pytest.mark.parametrize("margins", [(0.0, float("inf")), ((0.0,),)])
+def test_bad_primitive_margins_raise(margins):
+    with pytest.raises(ValueError, match="primitive margins"):
+        GreedyPixelActor(nn.Identity(), primitive_margins=margins)

@@ -3,6 +3,8 @@
 * :func:`sample_clutter` draws poses for a list of :class:`ObjectSpec`: loosely packed (upright, random yaw,
   footprints kept ``min_gap`` apart by rejection sampling, so every object can be grasped) or any packing
   (random orientation, anywhere in the spawn square, dropped from staggered heights so they pile up).
+* :func:`sample_packed` draws tightly packed clusters: upright objects side by side, a few millimetres apart, so
+  the jaws fit between few of them (a slide has to make room first).
 * :func:`validate_layout` checks an explicit layout (a list of ``(ObjectSpec, pose)``) by the objects' collision
   shapes (:mod:`~maniskill_pnp.tasks.layout_check`): inside the workspace, above the table, no two interpenetrating,
   and touching objects at rest in a short physics settle; it raises a ``ValueError`` naming the culprits.
@@ -123,6 +125,71 @@ def sample_clutter(
         dropped.append((xy, r, z + r))
         poses.append(sapien.Pose(p=[xy[0], xy[1], z], q=q / np.linalg.norm(q)))
     return poses
+
+
+def sample_packed(
+    rng: np.random.Generator,
+    specs: Sequence[ObjectSpec],
+    workspace: WorkspaceSpec,
+    gap: tuple[float, float] = (0.001, 0.003),
+    cluster_size: tuple[int, int] = (3, 6),
+    max_tries: int = 200,
+    restarts: int = 30,
+) -> list[sapien.Pose]:
+    """Poses that pack ``specs`` into tight clusters over the spawn square of ``workspace``.
+
+    Each cluster (``cluster_size`` objects, the last one what is left) has one random yaw. Its first object stands
+    at a random point; each next one stands beside a random member of the cluster, along one of that member's
+    sides, ``gap`` (m, uniform in the range) from it and shifted along the side by up to half of it. Objects are
+    upright (as :func:`sample_clutter` places loose ones), released 2 mm above the table, footprints apart from
+    every other object's and inside the spawn square.
+
+    Raises:
+        ValueError: bad ``gap`` or ``cluster_size``, or the objects do not fit (fewer objects would).
+    """
+    lo_gap, hi_gap = (float(g) for g in gap)
+    lo_n, hi_n = (int(n) for n in cluster_size)
+    if not 0 <= lo_gap <= hi_gap or not 1 <= lo_n <= hi_n:
+        raise ValueError(f"need 0 <= gap[0] <= gap[1] and 1 <= cluster_size[0] <= cluster_size[1], got {gap}, {cluster_size}")
+    (x0, x1), (y0, y1) = workspace.spawn_bounds
+    rect = (x0, x1, y0, y1)
+
+    def footprint(spec: ObjectSpec, xy: np.ndarray, yaw: float) -> tuple[sapien.Pose, tuple]:
+        pose = sapien.Pose(p=[xy[0], xy[1], workspace.table_z + spec.extents[2] / 2 + 0.002], q=yaw_quat(yaw))
+        c, rot, half = _obb(spec, pose)
+        return pose, (np.array([c[0], c[1], 0.0]), rot, np.array([half[0], half[1], 1.0]))
+
+    for _ in range(restarts):
+        placed: list[tuple] = []
+        poses: list[sapien.Pose] = []
+        cluster: list[tuple[np.ndarray, np.ndarray]] = []  # (xy, half extents) of the current cluster's members
+        left_in_cluster, yaw = 0, 0.0
+        for spec in specs:
+            if left_in_cluster == 0:
+                cluster, left_in_cluster, yaw = [], int(rng.integers(lo_n, hi_n + 1)), float(rng.uniform(-np.pi, np.pi))
+            axes = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])  # the cluster's x and y
+            half = spec.extents[:2] / 2
+            for _ in range(max_tries):
+                if not cluster:
+                    xy = rng.uniform([x0, y0], [x1, y1])
+                else:
+                    xy0, half0 = cluster[int(rng.integers(len(cluster)))]
+                    k, sign = int(rng.integers(2)), float(rng.choice([-1.0, 1.0]))
+                    along = (half0[k] + half[k] + rng.uniform(lo_gap, hi_gap)) * sign
+                    shift = rng.uniform(-0.5, 0.5) * half0[1 - k]
+                    xy = xy0 + along * axes[k] + shift * axes[1 - k]
+                pose, box = footprint(spec, xy, yaw)
+                if _inside_xy(box, rect) and not any(_footprints_overlap(box, other) for other in placed):
+                    placed.append(box)
+                    poses.append(pose)
+                    cluster.append((xy, half))
+                    left_in_cluster -= 1
+                    break
+            else:
+                break
+        if len(poses) == len(specs):
+            return poses
+    raise ValueError(f"could not pack {len(specs)} objects into clusters in the spawn square; use fewer objects")
 
 
 def _obb(spec: ObjectSpec, pose: sapien.Pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

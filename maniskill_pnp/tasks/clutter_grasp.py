@@ -118,7 +118,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     - which pool objects form the clutter and how many (``num_objects``: an int, a (min, max) range, or a
       density preset name of :data:`~maniskill_pnp.tasks.clutter.DENSITY_PRESETS`)
     - their xy positions and yaws (loosely packed: footprints ``min_gap`` apart) or full poses (any packing),
-      then a physics settle
+      then a physics settle; with ``packed_fraction`` that share of episodes packs them upright into tight clusters
+      a few millimetres apart instead (``clutter.packed`` says which envs got one)
     - or an explicit layout (``layout=``), or one of the scene files of ``layout_file=`` per episode (a seeded
       draw unless ``reset(options={"layout_index": k})`` picks one)
 
@@ -154,6 +155,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         object_kinds: tuple[str, ...] = KINDS,
         loosely_packed: bool = True,
         min_gap: float = 0.01,
+        packed_fraction: float = 0.0,
         layout=None,
         layout_file=None,
         objects=None,
@@ -164,7 +166,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         **kwargs,
     ):
         """Args beyond ManiSkill's: ``workspace`` (geometry, cameras, bin), ``num_objects``, ``object_kinds``,
-        ``loosely_packed`` and ``min_gap`` (clutter), ``layout`` (explicit list of (ObjectSpec, pose); overrides the
+        ``loosely_packed`` and ``min_gap`` (clutter), ``packed_fraction`` (share of random clutters packed into tight
+        clusters instead, see :func:`~maniskill_pnp.tasks.clutter.sample_packed`), ``layout`` (explicit list of (ObjectSpec, pose); overrides the
         random clutter), ``layout_file`` (a scene file, or a list of them: one layout each, episodes draw among them;
         not with ``layout``), ``objects`` (what random clutters are made of instead of procedural ``object_kinds``:
         ``"ycb"`` for every YCB model of ManiSkill's assets that fits the gripper, or a list of YCB model ids and/or
@@ -190,6 +193,10 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             library = resolve_objects(objects)
         if not min_gap >= 0:
             raise ValueError(f"min_gap must be >= 0, got {min_gap!r}")
+        if not 0.0 <= packed_fraction <= 1.0:
+            raise ValueError(f"packed_fraction must be in [0, 1], got {packed_fraction!r}")
+        if packed_fraction and (layout is not None or layout_file is not None):
+            raise ValueError("packed_fraction packs random clutters: not with layout= or layout_file=")
         if not (isinstance(max_consecutive_failures, int) and max_consecutive_failures >= 1):
             raise ValueError(f"max_consecutive_failures must be a positive int, got {max_consecutive_failures!r}")
         kwargs.setdefault("obs_mode", "rgb+depth")
@@ -202,7 +209,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         n = int(kwargs.get("num_envs", 1))  # ManiSkill's __init__ resets the envs, so the per-env state comes first
         #: The objects: the pool of actors and each env's episode objects.
         self.clutter = ClutterPool(self.workspace, n, layouts, num_objects_range, kinds, bool(loosely_packed), float(min_gap),
-                                   size=self.POOL_SIZE, library_seed=self.LIBRARY_SEED, settle=self.SETTLE,
+                                   packed_fraction=float(packed_fraction), size=self.POOL_SIZE, library_seed=self.LIBRARY_SEED, settle=self.SETTLE,
                                    max_speed=self.MAX_OBJECT_SPEED, library=library)
         self.max_consecutive_failures = max_consecutive_failures
         self.max_actions = int(max_actions) if max_actions is not None else 3 * num_objects_range[1]

@@ -75,7 +75,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
     **Randomizations:**
     - random clutters as ClutterGrasp-v1's: ``num_objects`` (10 by default; presets ``"min"`` 6–10,
       ``"medium"`` 15–20, ``"max"`` 25–30), dropped at random orientations that may pile up
-      (``loosely_packed=False`` by default)
+      (``loosely_packed=False`` by default); ``packed_fraction`` packs that share of them into tight clusters
     - or ``layout="complicated"`` (or ``num_objects="complicated"``): one of the hand-designed locking layouts
       of :mod:`~maniskill_pnp.tasks.complicated_layouts` per episode, a seeded draw unless
       ``complicated_index`` (or ``reset(options={"layout_index": k})``) fixes it

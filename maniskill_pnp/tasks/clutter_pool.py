@@ -18,7 +18,7 @@ import torch
 from mani_skill.utils.structs.pose import Pose
 
 from maniskill_pnp.planning.lockstep import Motion
-from maniskill_pnp.tasks.clutter import object_status, random_specs, sample_clutter
+from maniskill_pnp.tasks.clutter import object_status, random_specs, sample_clutter, sample_packed
 from maniskill_pnp.tasks.objects import ObjectSpec, build_object
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
@@ -48,6 +48,8 @@ class ClutterPool:
         num_objects: (min, max) objects of a random clutter.
         kinds: Object kinds of the random library.
         loosely_packed, min_gap: How random clutters are dropped (:func:`~maniskill_pnp.tasks.clutter.sample_clutter`).
+        packed_fraction: Share of random clutters packed tightly instead
+            (:func:`~maniskill_pnp.tasks.clutter.sample_packed`), a seeded draw per episode.
         size: Library size of random procedural clutters (at least ``num_objects[1]``).
         library_seed: Seed of the random library (its shapes, sizes and colours).
         settle: The settle after a drop.
@@ -64,6 +66,7 @@ class ClutterPool:
     kinds: tuple[str, ...]
     loosely_packed: bool = True
     min_gap: float = 0.01
+    packed_fraction: float = 0.0
     size: int = 20
     library_seed: int = 1234
     settle: SettleSpec = field(default_factory=SettleSpec)
@@ -90,6 +93,8 @@ class ClutterPool:
         self.active: list[list[str]] = [[] for _ in range(n)]
         self.active_actors: list[list] = [[] for _ in range(n)]
         self.layout_index = np.full(n, -1)
+        #: Per env: whether its random clutter was packed into tight clusters (``packed_fraction``).
+        self.packed = np.zeros(n, dtype=bool)
 
     def build(self, scene) -> None:
         """Build the pool's actors in ``scene`` (every sub-scene), parked."""
@@ -116,7 +121,12 @@ class ClutterPool:
                 self.layout_index[e] = -1
                 lo, hi = self.num_objects
                 chosen = sorted(rng.choice(len(self.actors), size=int(rng.integers(lo, hi + 1)), replace=False).tolist())
-                placed = sample_clutter(rng, [self.specs[i] for i in chosen], self.workspace, self.loosely_packed, self.min_gap)
+                specs = [self.specs[i] for i in chosen]
+                self.packed[e] = self.packed_fraction > 0 and rng.random() < self.packed_fraction
+                if self.packed[e]:
+                    placed = sample_packed(rng, specs, self.workspace)
+                else:
+                    placed = sample_clutter(rng, specs, self.workspace, self.loosely_packed, self.min_gap)
             for i, pose in zip(chosen, placed):
                 poses[i][k] = pose
             self.active_index[e] = chosen

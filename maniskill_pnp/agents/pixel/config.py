@@ -13,6 +13,7 @@ Example:
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -79,6 +80,10 @@ class ClutterConfig(RunConfig):
     """Side (m) of the square workspace the heightmap covers (the thesis: 224 px of 2 mm)."""
     num_objects: int = 10
     """Objects dropped into the workspace each episode."""
+    packed_fraction: float = 0.0
+    """Share of training episodes whose objects are packed into tight clusters instead of dropped (so that slides have
+    something to pull apart; see maniskill_pnp.tasks.clutter.sample_packed); evaluation scenes other than "train" are
+    never packed."""
     steps: int = 300
     """Grasp attempts (env steps) to train for, counted over resumes."""
     episodes: int = 0
@@ -129,6 +134,10 @@ class ClutterConfig(RunConfig):
     explore_weights: tuple[float, ...] = ()
     """Share of each primitive (grasp, left-slide, right-slide) among the ε-random actions, e.g. 2 1 1; empty: a
     uniform draw over the allowed actions, which in clutter makes about 4 in 5 of them slides."""
+    slide_margin: float = 0.0
+    """Greedy choice of a G&S agent: a slide is chosen only where its Q value beats the best allowed grasp's by more
+    than this (0: the plain argmax over all primitives). The Q values and their targets are unchanged; only which
+    action the greedy policy (and the ε-greedy one outside its random draws) takes."""
     seed: int = 0
     """Seed of the network initialisation, the episodes, the planner and the exploration."""
     workers: int = 1
@@ -187,6 +196,10 @@ class ClutterConfig(RunConfig):
             raise ValueError(f"explore_weights needs one weight per primitive {self.primitives}, got {self.explore_weights}")
         if self.explore_weights:
             PrimitiveExploreMask(self.explore_weights)  # raises on negative, non-finite or all-zero weights
+        if not 0.0 <= self.packed_fraction <= 1.0:
+            raise ValueError(f"packed_fraction must be in [0, 1], got {self.packed_fraction}")
+        if not math.isfinite(self.slide_margin) or (self.slide_margin and self.task != "grasp_slide"):
+            raise ValueError(f"slide_margin must be a finite number, and 0 unless task is 'grasp_slide'; got {self.slide_margin}")
         if self.episodes < 0 or not self.max_minutes >= 0:
             raise ValueError(f"episodes and max_minutes must be >= 0, got {self.episodes}, {self.max_minutes}")
 
@@ -211,6 +224,11 @@ class ClutterConfig(RunConfig):
     def primitives(self) -> tuple[str, ...]:
         """The task's primitive names, in the order of the action's primitive index."""
         return tuple(TASKS[self.task][1].PRIMITIVES)
+
+    def primitive_margins(self, slide_margin: float | None = None) -> tuple[float, ...]:
+        """The greedy choice's margin per primitive: 0 for grasps, ``slide_margin`` (default: the config's) for slides."""
+        m = self.slide_margin if slide_margin is None else float(slide_margin)
+        return tuple(0.0 if name == "grasp" else m for name in self.primitives)
 
 
 @functools.cache

@@ -107,6 +107,9 @@ class ClutterEvalConfig:
     i is played on file i mod the number of files."""
     grasp_only: bool = False
     """Mask out every primitive but grasps (a G&S agent evaluated as a grasp-only agent)."""
+    slide_margin: float | None = None
+    """A G&S agent slides only where a slide's Q value beats the best grasp's by more than this (None: the run's own
+    ``slide_margin``, 0 unless it was trained with one)."""
     avoid_repeats: bool = False
     """Never repeat an action that failed (a failed grasp, a slide that changed nothing) until the next success:
     a failure that leaves the scene as it was leaves the greedy argmax where it was, so without this memory the
@@ -438,7 +441,7 @@ def run(cfg: ClutterEvalConfig) -> dict:
     device = resolve_device(cfg.device)
     # 1. load the policy (a bad file fails before any env is made)
     ckpt = cfg.checkpoint_path
-    actor, train_cfg, counters = load_policy(ckpt, device, grasp_only=cfg.grasp_only)
+    actor, train_cfg, counters = load_policy(ckpt, device, grasp_only=cfg.grasp_only, slide_margin=cfg.slide_margin)
     primitives = actor.q_network.primitives
     env_cfg = train_cfg if cfg.num_objects is None else dataclasses.replace(train_cfg, num_objects=cfg.num_objects)
 

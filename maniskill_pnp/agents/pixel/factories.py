@@ -62,6 +62,8 @@ def make_env(cfg: ClutterConfig, scenario: str = "train", **task_kwargs):
                    sim_backend="physx_cpu", render_backend="cpu")
     if cfg.task == "grasp_slide":
         options["reward_scheme"] = cfg.reward_scheme
+    if scenario == "train" and cfg.packed_fraction:
+        options["packed_fraction"] = cfg.packed_fraction
     options.update(scenario_options(scenario, cfg.task), **task_kwargs)
     return make_torchrl_env(cfg.env_id, **options)
 
@@ -96,13 +98,15 @@ def make_policy(cfg: ClutterConfig, model: MultiPrimitiveQNetwork, action_spec, 
     under the config's action mask and explore weights; ε follows the config's schedule, or stays at ``eps``."""
     schedule = (dict(eps_init=cfg.eps_start, eps_end=cfg.eps_end, annealing_num_steps=cfg.eps_decay_steps) if eps is None
                 else dict(eps_init=eps, eps_end=eps, annealing_num_steps=1))
-    return make_pixel_policy(model, action_spec, action_mask=make_action_mask(cfg),
-                             explore_weights=cfg.explore_weights or None, **schedule)
+    return make_pixel_policy(model, action_spec, action_mask=make_action_mask(cfg), explore_weights=cfg.explore_weights or None,
+                             primitive_margins=cfg.primitive_margins(), **schedule)
 
 
-def load_policy(path: Path, device: torch.device, grasp_only: bool = False) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
+def load_policy(path: Path, device: torch.device, grasp_only: bool = False,
+                slide_margin: float | None = None) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
     """The greedy actor of a checkpoint (network in eval mode on ``device``, the training's action mask, and with
-    ``grasp_only`` only the grasp primitive enabled), its training config and counters.
+    ``grasp_only`` only the grasp primitive enabled; ``slide_margin`` replaces the run's own, see
+    :attr:`ClutterConfig.slide_margin`), its training config and counters.
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
@@ -123,7 +127,10 @@ def load_policy(path: Path, device: torch.device, grasp_only: bool = False) -> t
         raise ValueError(f"checkpoint {path}: the weights do not fit the network of its config: {e}") from e
     model.to(device).eval()
     mask = make_action_mask(train_cfg, enabled=("grasp",) if grasp_only else None)
-    return GreedyPixelActor(model, mask), train_cfg, dict(payload.get("counters", {}))
+    if slide_margin is not None and train_cfg.task != "grasp_slide":
+        raise ValueError(f"checkpoint {path} is a grasp-only agent ({train_cfg.env_id}): a slide margin needs a G&S agent")
+    margins = train_cfg.primitive_margins(slide_margin)
+    return GreedyPixelActor(model, mask, margins), train_cfg, dict(payload.get("counters", {}))
 
 
 __all__ = [

@@ -64,22 +64,44 @@ class GreedyPixelActor(nn.Module):
             :class:`~maniskill_pnp.agents.pixel.fcn.MultiPrimitiveQNetwork` (``(N, P, R, H, W)``).
         action_mask: Optional ``height (*B, H, W) -> bool (*B, P*R*H*W)``; the argmax skips masked-out actions
             and the mask is returned as a third output.
+        primitive_margins: Optional margin per primitive (the leading axis of the flat ``(P, R, H, W)`` index),
+            subtracted from that primitive's Q values for the argmax only (the returned values are the network's):
+            with ``(0, m, m)`` a G&S agent slides only where a slide's Q beats the best grasp's by more than ``m``.
     """
 
-    def __init__(self, q_network: nn.Module, action_mask: Callable[[torch.Tensor], torch.Tensor] | None = None):
+    def __init__(self, q_network: nn.Module, action_mask: Callable[[torch.Tensor], torch.Tensor] | None = None,
+                 primitive_margins: Sequence[float] | None = None):
         super().__init__()
         self.q_network = q_network
         self.action_mask = action_mask
+        try:
+            margins = torch.as_tensor([float(m) for m in (primitive_margins or ())], dtype=torch.float32)
+        except (TypeError, ValueError):
+            margins = torch.tensor([float("nan")])
+        if not torch.isfinite(margins).all():
+            raise ValueError(f"primitive margins must be finite numbers, one per primitive, got {primitive_margins!r}")
+        self.register_buffer("primitive_margins", margins if margins.any() else None, persistent=False)
+
+    def _choice_values(self, values: torch.Tensor) -> torch.Tensor:
+        """``values`` less each primitive's margin (the values the argmax ranks)."""
+        if self.primitive_margins is None:
+            return values
+        p = len(self.primitive_margins)
+        if values.shape[-1] % p:
+            raise ValueError(f"{values.shape[-1]} actions do not split into the {p} primitives of the margins")
+        blocks = values.reshape(*values.shape[:-1], p, -1) - self.primitive_margins.to(values.device)[:, None]
+        return blocks.reshape(values.shape)
 
     def forward(self, color: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, ...]:
         x = heightmap_input(color, depth)
         batch = x.shape[:-3]
         maps = self.q_network(x.reshape(-1, *x.shape[-3:]))
         values = maps.reshape(*batch, -1)
+        ranked = self._choice_values(values)
         if self.action_mask is None:
-            return values, values.argmax(dim=-1)
+            return values, ranked.argmax(dim=-1)
         mask = self.action_mask(depth.to(torch.float32))
-        return values, values.masked_fill(~mask, float("-inf")).argmax(dim=-1), mask
+        return values, ranked.masked_fill(~mask, float("-inf")).argmax(dim=-1), mask
 
 
 class PrimitiveExploreMask(nn.Module):
@@ -123,6 +145,7 @@ def make_pixel_policy(
     annealing_num_steps: int,
     action_mask: Callable[[torch.Tensor], torch.Tensor] | None = None,
     explore_weights: Sequence[float] | None = None,
+    primitive_margins: Sequence[float] | None = None,
 ) -> tuple[TensorDictModule, TensorDictSequential, EGreedyModule]:
     """The greedy pixel actor and the same actor with ε-greedy exploration.
 
@@ -134,6 +157,7 @@ def make_pixel_policy(
             among the allowed ones (written to ``"action_mask"``, which ``EGreedyModule`` reads).
         explore_weights: Optional share of each primitive among the random actions (see
             :class:`PrimitiveExploreMask`); ``None`` draws uniformly over the allowed actions.
+        primitive_margins: Optional margin per primitive for the greedy choice (see :class:`GreedyPixelActor`).
 
     Returns:
         ``(greedy, explore, egreedy)``; both policies read :data:`HEIGHTMAP_KEYS` and write ``"action_value"`` and
@@ -147,7 +171,7 @@ def make_pixel_policy(
     if not isinstance(action_spec, Categorical):
         raise TypeError(f"a pixel policy needs a Categorical action spec, got {type(action_spec).__name__}")
     out_keys = ["action_value", "action"] + (["action_mask"] if action_mask is not None else [])
-    greedy = TensorDictModule(GreedyPixelActor(q_network, action_mask), in_keys=list(HEIGHTMAP_KEYS), out_keys=out_keys)
+    greedy = TensorDictModule(GreedyPixelActor(q_network, action_mask, primitive_margins), in_keys=list(HEIGHTMAP_KEYS), out_keys=out_keys)
     mask_key = "action_mask" if action_mask is not None else None
     steps = [greedy]
     if explore_weights is not None:
