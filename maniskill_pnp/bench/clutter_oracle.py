@@ -16,7 +16,7 @@ from pathlib import Path
 import gymnasium as gym
 from tqdm import tqdm
 
-from maniskill_pnp.bench.common import machine_info, write_report
+from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.runtime import default_backends
 from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
 
@@ -76,8 +76,7 @@ def run(cfg: ClutterOracleBenchConfig) -> dict:
         "step_time_s_mean": {k: statistics.mean(v) for k, v in times.items()},
     }
     path = write_report(cfg.out, "clutter_oracle", {k: str(v) for k, v in asdict(cfg).items()}, results)
-    m = machine_info()
-    print(f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}")
+    print_machine()
     print(f"ClutterGrasp-v1, heightmap oracle, {cfg.scenes} scenes x {cfg.num_objects} objects (loosely packed)")
     for key in ("success_rate", "grasp_success", "completion", "action_efficiency"):
         print(f"  {key:<18} {results[key]:.1%}")

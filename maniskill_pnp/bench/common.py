@@ -31,12 +31,17 @@ def machine_info() -> dict:
     }
 
 
-def print_machine() -> None:
-    """One line of machine info: platform, CPUs, GPU and the versions of torch, torchrl, mani-skill and sapien."""
+def print_machine(load: tuple[float, float, float] | None = None) -> None:
+    """One line of machine info: platform, CPUs, GPU, the versions of torch, torchrl, mani-skill, sapien and ompl, and
+    the load average (1, 5, 15 min) when given: other processes on the same cores slow both sides of a comparison,
+    but not always alike."""
     m = machine_info()
     v = m["versions"]
-    print(f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}; torch {v['torch']}, torchrl {v['torchrl']}, "
-          f"mani-skill {v['mani-skill']}, sapien {v['sapien']}")
+    line = (f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}; torch {v['torch']}, torchrl {v['torchrl']}, "
+            f"mani-skill {v['mani-skill']}, sapien {v['sapien']}, ompl {v['ompl']}")
+    if load is not None:
+        line += f"; load average at start {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}"
+    print(line)
 
 
 def write_report(path: Path, name: str, settings: dict, results: dict) -> Path:

@@ -14,7 +14,7 @@ from maniskill_pnp.agents.tabular.evaluate import run as evaluate
 from maniskill_pnp.agents.tabular.qtable import ALGORITHMS
 from maniskill_pnp.agents.tabular.recipe import ConveyorConfig
 from maniskill_pnp.agents.tabular.recipe import main as train
-from maniskill_pnp.bench.common import machine_info, write_report
+from maniskill_pnp.bench.common import print_machine, write_report
 
 THESIS_AVERAGE = {"qlearning": 0.93, "sarsa": 0.80}
 
@@ -53,8 +53,7 @@ def run(cfg: ConveyorBenchConfig) -> dict:
             average_success_rate=agent["test_case_average_success_rate"], thesis_average=THESIS_AVERAGE[algorithm],
         )
     path = write_report(out / "conveyor.json", "conveyor", {k: str(v) for k, v in asdict(cfg).items()}, results)
-    m = machine_info()
-    print(f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}; torch {m['versions']['torch']}, torchrl {m['versions']['torchrl']}")
+    print_machine()
     for algorithm, r in results.items():
         print(f"  {algorithm:9s} average {100 * r['average_success_rate']:.0f}% (thesis {100 * r['thesis_average']:.0f}%), "
               f"train {r['train_wall_s']:.0f} s for {r['train_episodes']} episodes, eval {r['eval_wall_s']:.0f} s")

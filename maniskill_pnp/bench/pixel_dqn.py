@@ -49,7 +49,7 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from maniskill_pnp.bench.common import machine_info, write_report
+from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.runtime import resolve_device
 from maniskill_pnp.tasks.clutter_grasp_slide import ClutterGraspSlideEnv
 
@@ -304,7 +304,7 @@ def run_pixel_memory(cfg: PixelMemoryBenchConfig) -> dict:
                    ratio_cuda_efficient_over_non_efficient=ratio("cuda_peak_bytes"))
     path = write_report(cfg.out, "pixel_memory", {k: str(v) for k, v in asdict(cfg).items()}, results)
 
-    _print_machine(load_at_start)
+    print_machine(load_at_start)
     print(f"one training step (forward + Huber loss on one pixel per primitive + backward), batch 1, "
           f"{cfg.backbone}, {cfg.num_primitives} primitive(s) x {cfg.num_rotations} rotations x {cfg.heightmap_size} px")
     for name, v in variants.items():
@@ -502,7 +502,7 @@ def run_decision_cost(cfg: DecisionCostBenchConfig) -> dict:
     results.update(load_average_at_start=load_at_start, load_average_at_end=os.getloadavg())
     path = write_report(cfg.out, "decision_cost", {k: str(v) for k, v in asdict(cfg).items()}, results)
 
-    _print_machine(load_at_start)
+    print_machine(load_at_start)
     print(f"one greedy decision vs its bare trunk forwards: {cfg.backbone}, {cfg.num_rotations} rotations, "
           f"{cfg.heightmap_size} px, batch {cfg.batch}; median of {cfg.repeats} after {cfg.warmup} warm-up, "
           f"{results[f'primitives_{cfg.num_primitives[0]}']['torch_threads']} torch threads")
@@ -518,14 +518,6 @@ def run_decision_cost(cfg: DecisionCostBenchConfig) -> dict:
         print(f"    operators the decision adds to the trunks (self {r['ops_time_kind']} time, ms): {top}")
     print(f"report: {path}")
     return results
-
-
-def _print_machine(load: tuple[float, float, float]) -> None:
-    """One line of machine info, with the load average (1, 5, 15 min) when the benchmark started: other processes
-    on the same cores slow both sides of a comparison, but not always alike."""
-    m = machine_info()
-    print(f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}, "
-          f"torch {m['versions']['torch']}; load average at start {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
 
 
 def _main(argv: list[str]) -> None:

@@ -16,7 +16,7 @@ from pathlib import Path
 import gymnasium as gym
 from tqdm import tqdm
 
-from maniskill_pnp.bench.common import machine_info, write_report
+from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.demo import STATIC_ACTORS, cube_grasp_pose
 from maniskill_pnp.planning import MotionPrimitives
 from maniskill_pnp.runtime import default_backends
@@ -75,8 +75,7 @@ def run(cfg: PrimitivesBenchConfig) -> dict:
         results["maniskill_mplib_pickcube"] = _maniskill_yardstick(cfg.episodes)
         results["episodes_per_s_ratio_ours_over_maniskill"] = ours_eps / results["maniskill_mplib_pickcube"]["episodes_per_s_incl_reset"]
     path = write_report(cfg.out, "primitives", {k: str(v) for k, v in asdict(cfg).items()}, results)
-    m = machine_info()
-    print(f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}; mani-skill {m['versions']['mani-skill']}, ompl {m['versions']['ompl']}")
+    print_machine()
     print(f"pick-and-place of an isolated cube, {cfg.episodes} seeded episodes, no rendering")
     print(f"  success                       {successes}/{cfg.episodes}")
     print(f"  median planning time (pick)   {results['pick_planning_time_s_median'] * 1000:.1f} ms")

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from maniskill_pnp.bench.common import machine_info, write_report
+from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.runtime import default_backends
 
 _PAGE = os.sysconf("SC_PAGE_SIZE")
@@ -136,8 +136,7 @@ def run(cfg: SoakBenchConfig) -> dict:
     path = write_report(cfg.out, "soak", settings, results)
     png = plot_memory(memory, cfg.warmup, path.with_suffix(".png"))
     after, slope, wall = results["rss_mb_after_warmup"], results["slope_mb_per_1000_actions"], results["wall_s"]
-    m = machine_info()
-    print(f"machine: {m['platform']}, {m['cpus']} cpus, gpu={m['gpu']}")
+    print_machine()
     print(f"ClutterGraspSlide-v1, random {'masked ' if cfg.masked else ''}policy: {cfg.actions} actions, {episodes} episodes, "
           f"{wall / 60:.1f} min ({results['actions_per_s']:.2f} actions/s)")
     print(f"  RSS: start {memory[0]:.0f} MB, after warm-up ({cfg.warmup} actions) {after:.0f} MB, end {memory[-1]:.0f} MB, "
