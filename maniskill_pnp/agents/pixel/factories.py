@@ -62,8 +62,8 @@ def make_env(cfg: ClutterConfig, scenario: str = "train", **task_kwargs):
                    sim_backend="physx_cpu", render_backend="cpu")
     if cfg.task == "grasp_slide":
         options["reward_scheme"] = cfg.reward_scheme
-    if scenario == "train" and cfg.packed_fraction:
-        options["packed_fraction"] = cfg.packed_fraction
+    if scenario == "train" and cfg.packed_fraction and not {"layout", "layout_file"} & task_kwargs.keys():
+        options["packed_fraction"] = cfg.packed_fraction  # the training clutters, not explicit layouts
     options.update(scenario_options(scenario, cfg.task), **task_kwargs)
     return make_torchrl_env(cfg.env_id, **options)
 
