@@ -7,6 +7,10 @@ import pytest
 import sapien
 
 from maniskill_pnp.planning import MotionPrimitives, PlanCache, grasp_pose
+from maniskill_pnp.planning.primitives import PlaceRegion
+from maniskill_pnp.tasks.bin import BinSpec
+from maniskill_pnp.tasks.clutter import object_status
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
 from maniskill_pnp.planning.trajectory import densify, time_parameterize
 
 STATIC = {"table-workspace", "ground", "bin"}
@@ -216,3 +220,34 @@ def test_a_free_motion_starting_against_a_movable_object_moves_away_from_it(cube
     assert res.ok, res.reason
     assert "leaving ['cube'] that the arm touched at the start" in res.stages[-1][2]
     assert np.abs(prims.executor.qpos() - goal).max() < 0.05
+
+
+def test_place_releases_higher_when_the_drop_pose_collides(cube_env):
+    """A drop height at the bin's floor puts the held cube into the floor: the place releases it higher instead."""
+    prims = _prims(cube_env, seed=0)
+    pick = prims.pick(_cube_grasp(cube_env), target="cube")
+    assert pick.ok, pick.reason
+    region = cube_env.unwrapped.bin_spec.region()
+    low = PlaceRegion(center=region.center, half_size=region.half_size, drop_height=0.0)
+    place = prims.place(low)
+    assert place.ok, place.reason
+    assert bool(cube_env.unwrapped.evaluate()["success"].item())
+    prims = _prims(cube_env, seed=0)
+    prims.PLACE_LIFTS = (0.0,)  # without the higher poses the same place fails at its IK
+    assert prims.pick(_cube_grasp(cube_env), target="cube").ok
+    place = prims.place(low)
+    assert not place.ok and place.stage == "place_ik" and "collides" in place.reason
+
+
+def test_the_bin_region_holds_the_pile_over_its_footprint():
+    """An object resting on other objects in a filling bin is in the bin, up to 5 cm over the release height; one
+    beside the bin at the same height, or one that was never released, is not."""
+    spec = BinSpec()
+    region = spec.region()
+    cx, cy, cz = spec.center
+    on_pile = np.array([cx + 0.05, cy - 0.05, cz + spec.wall_height + 0.1])
+    assert region.contains(on_pile)
+    assert not region.contains(on_pile + [2 * spec.inner_half_size[0], 0.0, 0.0])
+    assert not region.contains(np.array([cx, cy, cz + region.drop_height + 0.1]))
+    statuses = object_status(np.stack([on_pile, [cx, cy, cz + region.drop_height + 0.1]]), WorkspaceSpec(bin=spec))
+    assert statuses == ["bin", "lost"]

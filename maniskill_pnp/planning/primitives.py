@@ -142,6 +142,9 @@ class MotionPrimitives:
     LIFTED = 0.05
     #: Control steps given to the gripper to close or open.
     GRIPPER_STEPS = 12
+    #: Heights (m) above the place region's drop height tried in turn for the release pose: where the held object
+    #: would collide at the drop height (a filling bin, an object held off its centre), it is released higher.
+    PLACE_LIFTS = (0.0, 0.08, 0.16)
 
     def __init__(
         self,
@@ -322,14 +325,17 @@ class MotionPrimitives:
         self._sync(ignore={name})
         self._attach(name)
         try:
-            drop = np.asarray(region.center, np.float64) + [0.0, 0.0, region.drop_height]
             q_now = self.executor.qpos()
             tcp = self.kin.fk(q_now)
             yaw_turns = [sapien.Pose(q=[np.cos(a / 2), 0.0, 0.0, np.sin(a / 2)]) for a in (0.0, np.pi / 2, np.pi, -np.pi / 2)]
-            poses = [sapien.Pose(p=drop) * t * sapien.Pose(q=tcp.q) for t in yaw_turns]
-            ik = self._timed(self.kin.ik_any, poses, q_now)
-            if not ik.ok:
-                raise _StageFailed("place_ik", ik.reason)
+            for lift in self.PLACE_LIFTS:  # the lowest release pose whose IK is free of collisions
+                drop = np.asarray(region.center, np.float64) + [0.0, 0.0, region.drop_height + lift]
+                poses = [sapien.Pose(p=drop) * t * sapien.Pose(q=tcp.q) for t in yaw_turns]
+                ik = self._timed(self.kin.ik_any, poses, q_now)
+                if ik.ok:
+                    break
+            else:
+                raise _StageFailed("place_ik", f"{ik.reason} (release up to {max(self.PLACE_LIFTS):.2f} m above the drop height)")
             yield from self._move_to(ik.q, "carry", res)
         finally:
             self.world.detach()

@@ -29,9 +29,11 @@ class BinSpec:
     color: tuple[float, float, float, float] = (0.35, 0.35, 0.4, 1.0)
 
     def region(self) -> PlaceRegion:
-        """The region inside the bin where a placed object must come to rest."""
+        """The region where a placed object must come to rest: the bin's inside and, once objects pile up in it, the
+        pile above its footprint up to 5 cm over the release height (an object resting on the pile is in the bin)."""
         hx, hy = self.inner_half_size
-        return PlaceRegion(center=self.center, half_size=(hx, hy, self.wall_height), drop_height=self.wall_height + 0.12)
+        drop = self.wall_height + 0.12
+        return PlaceRegion(center=self.center, half_size=(hx, hy, (drop + 0.05) / 2), drop_height=drop)
 
 
 def build_bin(scene, spec: BinSpec, name: str = "bin"):
