@@ -94,11 +94,7 @@ def sample_clutter(
                 for _ in range(max_tries):
                     xy = rng.uniform([x0, y0], [x1, y1])
                     yaw = rng.uniform(-np.pi, np.pi)
-                    z = workspace.table_z + spec.extents[2] / 2 + 0.002
-                    pose = sapien.Pose(p=[xy[0], xy[1], z], q=yaw_quat(yaw))
-                    c, rot, half = _obb(spec, pose)
-                    # Footprints only: a tall slab in z, grown by half the gap in x and y.
-                    box = (np.array([c[0], c[1], 0.0]), rot, np.array([half[0] + min_gap / 2, half[1] + min_gap / 2, 1.0]))
+                    pose, box = _upright(spec, xy, yaw, workspace, grow=min_gap / 2)
                     if _inside_xy(box, (x0, x1, y0, y1)) and not any(_footprints_overlap(box, other) for other in placed):
                         placed.append(box)
                         by_index[i] = pose
@@ -154,11 +150,6 @@ def sample_packed(
     (x0, x1), (y0, y1) = workspace.spawn_bounds
     rect = (x0, x1, y0, y1)
 
-    def footprint(spec: ObjectSpec, xy: np.ndarray, yaw: float) -> tuple[sapien.Pose, tuple]:
-        pose = sapien.Pose(p=[xy[0], xy[1], workspace.table_z + spec.extents[2] / 2 + 0.002], q=yaw_quat(yaw))
-        c, rot, half = _obb(spec, pose)
-        return pose, (np.array([c[0], c[1], 0.0]), rot, np.array([half[0], half[1], 1.0]))
-
     for _ in range(restarts):
         placed: list[tuple] = []
         poses: list[sapien.Pose] = []
@@ -178,7 +169,7 @@ def sample_packed(
                     along = (half0[k] + half[k] + rng.uniform(lo_gap, hi_gap)) * sign
                     shift = rng.uniform(-0.5, 0.5) * half0[1 - k]
                     xy = xy0 + along * axes[k] + shift * axes[1 - k]
-                pose, box = footprint(spec, xy, yaw)
+                pose, box = _upright(spec, xy, yaw, workspace)
                 if _inside_xy(box, rect) and not any(_footprints_overlap(box, other) for other in placed):
                     placed.append(box)
                     poses.append(pose)
@@ -190,6 +181,14 @@ def sample_packed(
         if len(poses) == len(specs):
             return poses
     raise ValueError(f"could not pack {len(specs)} objects into clusters in the spawn square; use fewer objects")
+
+
+def _upright(spec: ObjectSpec, xy, yaw: float, workspace: WorkspaceSpec, grow: float = 0.0) -> tuple[sapien.Pose, tuple]:
+    """The pose of ``spec`` standing upright at ``xy`` with ``yaw``, released 2 mm above the table, and its footprint:
+    a tall slab in z (centre, rotation, half size), grown by ``grow`` in x and y."""
+    pose = sapien.Pose(p=[xy[0], xy[1], workspace.table_z + spec.extents[2] / 2 + 0.002], q=yaw_quat(yaw))
+    c, rot, half = _obb(spec, pose)
+    return pose, (np.array([c[0], c[1], 0.0]), rot, np.array([half[0] + grow, half[1] + grow, 1.0]))
 
 
 def _obb(spec: ObjectSpec, pose: sapien.Pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
