@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import sapien
 
-from maniskill_pnp.planning import MotionPrimitives, PlanCache, grasp_pose
+from maniskill_pnp.planning import MotionPrimitives, PlanCache, SegmentResult, grasp_pose
 from maniskill_pnp.planning.primitives import PlaceRegion
 from maniskill_pnp.tasks.bin import BinSpec
 from maniskill_pnp.tasks.clutter import object_status
@@ -237,6 +237,42 @@ def test_place_releases_higher_when_the_drop_pose_collides(cube_env):
     assert prims.pick(_cube_grasp(cube_env), target="cube").ok
     place = prims.place(low)
     assert not place.ok and place.stage == "place_ik" and "collides" in place.reason
+
+
+def _no_straight_line_up_past(prims, rise):
+    """Make every straight line that rises more than ``rise`` (m) invalid, as a singularity would."""
+    straight = prims.kin.straight_line
+
+    def limited(q_start, goal, **kw):
+        if goal.p[2] - prims.kin.fk(q_start).p[2] > rise:
+            return SegmentResult(None, "straight line passes a singularity (joint jump) at 90%")
+        return straight(q_start, goal, **kw)
+
+    prims.kin.straight_line = limited
+
+
+def test_a_lift_without_a_straight_line_lifts_lower(cube_env):
+    """A grasp whose full lift meets a singularity lifts by the first fallback height instead and still places."""
+    prims = _prims(cube_env, seed=0)
+    _no_straight_line_up_past(prims, 0.12)
+    pick = prims.pick(_cube_grasp(cube_env), target="cube")
+    assert pick.ok and pick.grasped, pick.reason
+    lift = [s for s in pick.stages if s[0] == "lift"]
+    assert lift and lift[0][1] and lift[0][2].startswith(f"{prims.LIFT_FALLBACKS[0]:.2f} m up")
+    assert prims.place(cube_env.unwrapped.bin_spec.region()).ok
+    assert bool(cube_env.unwrapped.evaluate()["success"].item())
+
+
+def test_a_grasp_that_cannot_lift_opens_the_jaws_where_they_are(cube_env):
+    """With no straight lift at all the jaws open before the failure, so the way home carries nothing away."""
+    prims = _prims(cube_env, seed=0)
+    _no_straight_line_up_past(prims, 0.02)
+    z0 = float(cube_env.unwrapped.cube.pose.p[0, 2])
+    pick = prims.pick(_cube_grasp(cube_env), target="cube")
+    assert not pick.ok and pick.stage == "lift" and "the jaws opened where they were" in pick.reason
+    assert prims.held is None and np.min(prims.executor.finger_qpos()) > 0.03
+    assert prims.go_home().ok
+    assert abs(float(cube_env.unwrapped.cube.pose.p[0, 2]) - z0) < 0.01  # still on the table
 
 
 def test_the_bin_region_holds_the_pile_over_its_footprint():

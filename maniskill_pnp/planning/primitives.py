@@ -136,6 +136,9 @@ class MotionPrimitives:
     PREGRASP_HEIGHT = 0.10
     #: Height the object is lifted after closing (m).
     LIFT_HEIGHT = 0.15
+    #: Lift heights (m) tried in turn when the straight line up has no valid path (a joint jump near a singularity
+    #: at the edge of the reach, a joint limit, a collision): each still lifts an object past :attr:`LIFTED`.
+    LIFT_FALLBACKS = (0.10, 0.07)
     #: Fingers closer than this (m, per finger) mean the jaws closed on nothing.
     EMPTY_GAP = 0.002
     #: An object counts as lifted when it rose at least this much (m).
@@ -279,8 +282,7 @@ class MotionPrimitives:
         closed_on_something = bool(np.min(fingers) > self.EMPTY_GAP)
         self._sync(ignore=movable)  # lift straight up through whatever is around the grasp
         self.world.set_fingers(float(np.min(fingers)))
-        up = sapien.Pose(p=self.kin.fk(self.executor.qpos()).p + [0.0, 0.0, self.LIFT_HEIGHT], q=goal.q)
-        yield from self._straight(up, "lift", res)
+        up = yield from self._lift(goal, res)
         lifted = {n: h for n, h in self._object_heights(movable).items() if h - heights[n] > self.LIFTED}
         fingers = self.executor.finger_qpos()
         pool = set(candidates) if candidates is not None else movable
@@ -293,6 +295,22 @@ class MotionPrimitives:
                 why += f"; {sorted(lifted)} came up with the fingers and was put back"
             raise _StageFailed("grasp_check", why)
         self.held = res.held = max(held, key=lambda n: lifted[n])
+
+    def _lift(self, goal: sapien.Pose, res: PrimitiveResult) -> sapien.Pose:
+        """Lift straight up by :attr:`LIFT_HEIGHT`, or by the first of :attr:`LIFT_FALLBACKS` that has a straight
+        line; return the pose reached. Where none has one, open the jaws where they are before failing, so that the
+        way home does not carry the object out of the workspace on closed fingers."""
+        start = self.kin.fk(self.executor.qpos()).p
+        reasons = []
+        for height in (self.LIFT_HEIGHT, *self.LIFT_FALLBACKS):
+            up = sapien.Pose(p=start + [0.0, 0.0, height], q=goal.q)
+            seg = self._timed(self.kin.straight_line, self.executor.qpos(), up)
+            if seg.ok:
+                yield from self._execute(seg.path, "lift", res, f"{height:.2f} m up, {len(seg.path)} waypoints")
+                return up
+            reasons.append(f"{height:.2f} m: {seg.reason}")
+        yield self._gripper(1.0, self.GRIPPER_STEPS)
+        raise _StageFailed("lift", "no straight lift (" + "; ".join(reasons) + "); the jaws opened where they were")
 
     def _put_back(self, down: sapien.Pose, up: sapien.Pose, names: list[str], res: PrimitiveResult) -> None:
         """Lower the jaws back to ``down``, open them and rise to ``up`` again, so that objects that came up
