@@ -498,14 +498,16 @@ PIXEL = [
     md('''
 # The pixelwise grasping agent (thesis part II)
 
-A VPG-style deep Q-network on `ClutterGrasp-v1`: a fully convolutional network maps the heightmaps (RGB + height,
-4 channels) to one **Q value per pixel**, once for each of R rotations of the input (the heightmap is rotated so that
-the jaws always close along the same image axis, then the map is rotated back). The action is the argmax over
+A pixelwise deep Q-network on `ClutterGrasp-v1`: a fully convolutional network maps the heightmaps (RGB + height,
+4 channels) to one **Q value per pixel** for each of R = 16 grasp yaws (8 jaw orientations 22.5° apart). The
+`equivariant` backbone (e2cnn, rotation group C16) gives all 16 maps from one pass on the unrotated heightmap; the
+VPG-style backbones (`small`, `densenet121`) run the trunk on 16 rotated copies of the heightmap instead. The action is the argmax over
 (rotation, row, col); only the executed pixel is trained (Huber loss to $r + \\gamma \\max Q'(s')$, prioritized replay,
 a target network). An action mask keeps grasps on pixels where the heightmap shows material.
 
-The `cpu-small` preset (`ClutterConfig.from_preset("cpu-small")`) is sized for 2 CPU cores: a small ResNet-18 trunk,
-4 rotations, 64×64 heightmaps of a 44.8 cm workspace, 10 objects. The thesis preset (`thesis`) is DenseNet-121,
+The `cpu-equi` preset (`ClutterConfig.from_preset("cpu-equi")`) is sized for 2 CPU cores: the equivariant network,
+16 rotations, 64×64 heightmaps of a 44.8 cm workspace, 10 objects (`cpu-small` is the same with a small ResNet-18
+trunk on rotated copies, the slower baseline). The thesis preset (`thesis`) is DenseNet-121,
 16 rotations, 224 px: a GPU job. This notebook shows the network's maps, runs a very short training run with
 `recipe.main` (`maniskill-pnp train-clutter`) and evaluates it with `evaluate.run`
 (`maniskill-pnp eval-clutter`). A short run does not learn much: it shows the pipeline, not the learned figures.
@@ -532,7 +534,7 @@ torch.manual_seed(0)
 DEVICE = torch.device("cpu")
 ''' + SHOW),
     code('''
-cfg = ClutterConfig.from_preset("cpu-small", num_objects=NUM_OBJECTS, steps=TRAIN_STEPS, log_interval=1,
+cfg = ClutterConfig.from_preset("cpu-equi", num_objects=NUM_OBJECTS, steps=TRAIN_STEPS, log_interval=1,
                                 checkpoint_interval=TRAIN_STEPS, out=OUT / "runs")
 print({f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)
        if f.name in ("preset", "task", "backbone", "num_rotations", "heightmap_size", "workspace_side", "num_objects",
@@ -542,7 +544,7 @@ print("run folder:", cfg.run_dir)
     md('''
 ## The task through the recipe
 
-`factories.make_env(cfg)` is `ClutterGrasp-v1` with the config's workspace (64 px, 4 rotations) as a TorchRL
+`factories.make_env(cfg)` is `ClutterGrasp-v1` with the config's workspace (64 px, 16 rotations) as a TorchRL
 env (`make_torchrl_env`); `.maniskill_env` is the gymnasium env underneath.
 '''),
     code('''
@@ -607,7 +609,7 @@ assert summary["steps"] == TRAIN_STEPS and summary["updates"] >= 1
 assert (cfg.run_dir / "checkpoint.pt").is_file() and (cfg.run_dir / "actions.csv").is_file()
 
 window = max(1, min(10, TRAIN_STEPS))
-curves = plot_training_curves({"cpu-small": cfg.run_dir}, OUT / "training_curves.png", window=window)
+curves = plot_training_curves({"cpu-equi": cfg.run_dir}, OUT / "training_curves.png", window=window)
 print(curves)
 display(Image(filename=str(OUT / "training_curves.png")))
 '''),
@@ -628,11 +630,11 @@ assert all(0.0 <= v <= 1.0 for v in result["metrics"]["train"].values())
 display(Image(filename=result["files"]["q_heatmaps"]))
 '''),
     md('''
-For a run that learns (about 35 min on 2 cores for 1600 actions; see the README for its curves and figures):
+For a run that learns (about 28 minutes on 2 cores; see the README for its figures):
 
 ```bash
-.venv/bin/maniskill-pnp train-clutter --preset cpu-small --updates-per-step 2
-.venv/bin/maniskill-pnp eval-clutter runs/clutter/cpu-small_small_r4_px64_seed0 --episodes 10
+.venv/bin/maniskill-pnp train-clutter --preset cpu-equi --steps 3000 --updates-per-step 2 --max-minutes 28
+.venv/bin/maniskill-pnp eval-clutter runs/clutter/cpu-equi_equivariant_r16_px64_seed0 --episodes 24 --max-steps 30
 ```
 '''),
 ]
@@ -794,15 +796,15 @@ env.close()
     md('''
 ## A G&S agent on the layout
 
-The `gs-cpu-small` preset is the G&S agent sized for a CPU: three small-trunk FCNs (grasp, left slide, right slide),
-4 rotations, 64 px. It acts by the argmax over all three primitives' maps, under the action mask (grasps on material,
+The `gs-cpu-equi` preset is the G&S agent sized for a CPU: three equivariant FCNs (grasp, left slide, right slide),
+16 rotations, 64 px. It acts by the argmax over all three primitives' maps, under the action mask (grasps on material,
 slides from bare table towards material within half a slide). Here the networks are untrained, so its choices are arbitrary; the point is the
 interface: the per-primitive Q maps and what each step did. Training it is
-`maniskill-pnp train-clutter --preset gs-cpu-small` (`recipe.main`), evaluating it on these layouts
+`maniskill-pnp train-clutter --preset gs-cpu-equi` (`recipe.main`), evaluating it on these layouts
 `maniskill-pnp eval-clutter <run> --scenarios complicated`.
 '''),
     code('''
-cfg = ClutterConfig.from_preset("gs-cpu-small", out=OUT / "runs")
+cfg = ClutterConfig.from_preset("gs-cpu-equi", out=OUT / "runs")
 tenv = make_env(cfg, layout="complicated", complicated_index=K)  # TorchRL env; .maniskill_env is the gym env
 genv = tenv.maniskill_env
 layout = genv.unwrapped.action_layout

@@ -336,7 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_demo)
 
     quick = sub.add_parser("quickstart", help="the README's main job: train and evaluate the conveyor Q-learning agent, "
-                           "then film one ClutterGraspSlide-v1 episode of the bundled gs-cpu-small agent (~10 min on 2 cores)")
+                           "then film one ClutterGraspSlide-v1 episode of the bundled gs-cpu-equi agent (~10 min on 2 cores)")
     from maniskill_pnp.quickstart import QuickstartConfig
 
     add_config_options(quick, QuickstartConfig)
@@ -372,7 +372,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--workers", type=int, nargs="+", default=[1, 2],
                        help="collection: worker counts measured, ratios against the first (default: 1 2)")
     bench.add_argument("--frames", type=int, default=24, help="collection: timed transitions per worker count (default: %(default)s)")
-    bench.add_argument("--preset", default="gs-cpu-small",
+    bench.add_argument("--preset", default="gs-cpu-equi",
                        help="decision-breakdown, batched-decisions: clutter recipe preset (default: %(default)s)")
     bench.add_argument("--num-envs", type=int, nargs="+", default=[1, 16],
                        help="batched-decisions: env counts run on the GPU (default: 1 16)")

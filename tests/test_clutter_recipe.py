@@ -76,10 +76,10 @@ def test_epsilon_one_draws_valid_varied_indices():
 #: A few fields of every preset (task, backbone, loss, rotations, heightmap size, steps, batch size, and the ablation
 #: each gs-* preset exists for).
 PRESET_VALUES = {
-    "cpu-small": dict(task="grasp", backbone="small", loss="dqn", num_rotations=4, heightmap_size=64, steps=300, batch_size=4),
+    "cpu-small": dict(task="grasp", backbone="small", loss="dqn", num_rotations=16, heightmap_size=64, steps=300, batch_size=4),
     "thesis": dict(task="grasp", backbone="densenet121", num_rotations=16, heightmap_size=224, num_objects=10,
                    episodes=3000, steps=90_000, batch_size=1, replay_capacity=50_000, success_window=200),
-    "gs-cpu-small": dict(task="grasp_slide", backbone="small", num_rotations=4, heightmap_size=64, steps=300),
+    "gs-cpu-small": dict(task="grasp_slide", backbone="small", num_rotations=16, heightmap_size=64, steps=300),
     "gs-thesis": dict(task="grasp_slide", backbone="densenet121", num_rotations=16, heightmap_size=224, steps=90_000,
                       eps_decay_steps=10_000, target_update_interval=500, checkpoint_interval=500, log_interval=50),
     "gs-resnet101": dict(task="grasp_slide", backbone="resnet101", num_rotations=16, heightmap_size=224),
@@ -97,6 +97,13 @@ def test_every_preset_loads_with_its_values(name):
     cfg = ClutterConfig.from_preset(name)
     assert cfg.preset == name
     assert {field: getattr(cfg, field) for field in PRESET_VALUES[name]} == PRESET_VALUES[name]
+
+
+@pytest.mark.parametrize("name", list(PRESET_VALUES))
+def test_every_preset_has_eight_jaw_orientations(name):
+    """A parallel-jaw grasp at rotation r and r + R/2 is one jaw line: R = 16 gives 8 orientations 22.5 degrees apart."""
+    cfg = ClutterConfig.from_preset(name)
+    assert cfg.num_rotations % 2 == 0 and cfg.num_rotations // 2 >= 8
 
 
 def test_presets_file_is_the_list_of_presets_and_overrides_apply():

@@ -22,8 +22,8 @@ EXPECTED_OUTPUTS = {
                             "learning_curves.png", "eval/test_cases.md", "eval/test_cases.csv", "eval/categories.md",
                             "eval/eval.json"],
     "03_pixel_grasp_agent": ["heightmaps.png", "untrained_q_heatmaps.png",
-                             "runs/cpu-small_small_r4_px64_seed0/checkpoint.pt",
-                             "runs/cpu-small_small_r4_px64_seed0/actions.csv", "training_curves.png",
+                             "runs/cpu-equi_equivariant_r16_px64_seed0/checkpoint.pt",
+                             "runs/cpu-equi_equivariant_r16_px64_seed0/actions.csv", "training_curves.png",
                              "eval/eval_table.md", "eval/eval_summary.json", "eval/q_heatmaps.png"],
     "04_grasp_and_slide": ["layouts.png", "slide_then_grasp.png", "gs_q_heatmaps.png", "gs_step0.png"],
 }

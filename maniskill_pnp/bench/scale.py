@@ -287,7 +287,7 @@ class DecisionBreakdownBenchConfig:
         out: JSON report (a Markdown table is written beside it).
     """
 
-    preset: str = "gs-cpu-small"
+    preset: str = "gs-cpu-equi"
     decisions: int = 10
     num_objects: int = 10
     seed: int = 0
@@ -362,7 +362,7 @@ class BatchedDecisionsBenchConfig:
         out: JSON report (a Markdown table is written beside it).
     """
 
-    preset: str = "gs-cpu-small"
+    preset: str = "gs-cpu-equi"
     num_envs: tuple[int, ...] = (1, 16)
     steps: int = 3
     num_objects: int = 10

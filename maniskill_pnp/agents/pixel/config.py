@@ -72,8 +72,9 @@ class ClutterConfig(RunConfig):
     head_channels: int = 64
     """Width of the hidden 1x1 convolution of the Q head (equivariant backbone: channels of its full-resolution layers,
     in whole regular fields of num_rotations channels)."""
-    num_rotations: int = 4
-    """Grasp yaws evenly spaced over 360 degrees (the thesis uses 16)."""
+    num_rotations: int = 16
+    """Grasp yaws evenly spaced over 360 degrees (the thesis' 16: a parallel-jaw grasp at r and r + R/2 is the same
+    jaw line, so 16 rotations are 8 jaw orientations 22.5 degrees apart)."""
     heightmap_size: int = 64
     """Heightmap pixels per side; the pixel size is ``workspace_side / heightmap_size``."""
     workspace_side: float = 0.448
