@@ -88,7 +88,8 @@ PRESET_VALUES = {
     "gs-no-depth": dict(task="grasp_slide", use_depth=False, backbone="densenet121", num_rotations=16),
     "gs-double-dqn": dict(task="grasp_slide", double_dqn=True, delay_value=True, backbone="densenet121"),
     "cpu-equi": dict(task="grasp", backbone="equivariant", num_rotations=16, heightmap_size=64, steps=300, batch_size=4),
-    "gs-cpu-equi": dict(task="grasp_slide", backbone="equivariant", num_rotations=16, heightmap_size=64, steps=300),
+    "gs-cpu-equi": dict(task="grasp_slide", backbone="equivariant", num_rotations=16, head_channels=32, heightmap_size=64,
+                        steps=300),
 }
 
 
