@@ -372,7 +372,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--workers", type=int, nargs="+", default=[1, 2],
                        help="collection: worker counts measured, ratios against the first (default: 1 2)")
     bench.add_argument("--frames", type=int, default=24, help="collection: timed transitions per worker count (default: %(default)s)")
-    bench.add_argument("--preset", default="gs-cpu-equi",
+    from maniskill_pnp.bench.scale import DEFAULT_PRESET
+
+    bench.add_argument("--preset", default=DEFAULT_PRESET,
                        help="decision-breakdown, batched-decisions: clutter recipe preset (default: %(default)s)")
     bench.add_argument("--num-envs", type=int, nargs="+", default=[1, 16],
                        help="batched-decisions: env counts run on the GPU (default: 1 16)")

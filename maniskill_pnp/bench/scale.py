@@ -38,6 +38,9 @@ from maniskill_pnp.agents.run_io import require_positive
 from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.runtime import default_backends
 
+#: The clutter recipe preset the decision benchmarks measure unless told otherwise.
+DEFAULT_PRESET = "gs-cpu-equi"
+
 #: Tasks the collection benchmark can run, with the recipe that builds them.
 COLLECTION_TASKS = ("conveyor", "clutter", "clutter-slide")
 #: Parts of a decision in the breakdown table, in pipeline order.
@@ -287,7 +290,7 @@ class DecisionBreakdownBenchConfig:
         out: JSON report (a Markdown table is written beside it).
     """
 
-    preset: str = "gs-cpu-equi"
+    preset: str = DEFAULT_PRESET
     decisions: int = 10
     num_objects: int = 10
     seed: int = 0
@@ -362,7 +365,7 @@ class BatchedDecisionsBenchConfig:
         out: JSON report (a Markdown table is written beside it).
     """
 
-    preset: str = "gs-cpu-equi"
+    preset: str = DEFAULT_PRESET
     num_envs: tuple[int, ...] = (1, 16)
     steps: int = 3
     num_objects: int = 10
