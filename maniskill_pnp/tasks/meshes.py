@@ -7,8 +7,8 @@ This module reads such files once per (path, modification time, scale) and gives
 * :func:`mesh_info`: the scaled mesh centred on its axis-aligned bounding box (what the object frame is, as for the
   procedural kinds), its extents, whether it is watertight and convex, and the narrowest width of its footprint;
 * :func:`convex_parts`: the convex collision parts (object frame) as ``.obj`` files in the cache folder
-  (``MANISKILL_PNP_CACHE`` or ``~/.cache/maniskill_pnp``), one file per part, computed once per
-  (file content hash, scale, decomposition parameters):
+  (``MANISKILL_PNP_CACHE`` or ``~/.cache/maniskill_pnp``, see :func:`~maniskill_pnp.tasks.asset_cache.mesh_cache_dir`),
+  one file per part, computed once per (file content hash, scale, decomposition parameters):
 
   - a mesh that is already convex (its volume within :data:`CONVEX_TOLERANCE` of its hull's) is one hull;
   - another watertight mesh is decomposed by CoACD (``coacd`` package, :data:`COACD_PARAMS`);
@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from maniskill_pnp.tasks.asset_cache import mesh_cache_dir
 
 #: File types read (trimesh reads them for the geometry, SAPIEN for the visual shape).
 MESH_SUFFIXES = (".obj", ".stl", ".glb", ".gltf", ".ply")
@@ -75,12 +77,6 @@ class MeshInfo:
     def convex(self) -> bool:
         """Watertight and as voluminous as its hull (within :data:`CONVEX_TOLERANCE`)."""
         return self.volume is not None and abs(self.hull_volume - self.volume) <= CONVEX_TOLERANCE * self.hull_volume
-
-
-def _cache_dir() -> Path:
-    from maniskill_pnp.tasks.objects import _cache_dir as meshes_dir
-
-    return meshes_dir()
 
 
 def _file_stat(path: Path) -> tuple[int, int]:
@@ -225,7 +221,7 @@ def convex_parts(file, scale=(1.0, 1.0, 1.0), collision=None) -> list[Path]:
     info = mesh_info(file, scale)
     coll = mesh_info(collision, scale) if collision is not None else None
     key = parts_key(info, scale, coll)
-    folder = _cache_dir() / f"parts_{key}"
+    folder = mesh_cache_dir() / f"parts_{key}"
     manifest = folder / "parts.json"
     if manifest.exists():
         names = json.loads(manifest.read_text())["parts"]

@@ -19,8 +19,9 @@ mesh       none: ``file`` (OBJ, STL, GLB, PLY) and ``scale``      convex parts (
 
 Every object is centred on its axis-aligned bounding box, rests on its bottom face when upright, is at least
 2 cm high and at most 7 cm across in at least one horizontal direction (what the Panda's jaws, 8 cm open, take).
-Convex meshes are written once to a cache folder (``MANISKILL_PNP_CACHE`` or ``~/.cache/maniskill_pnp``) and
-loaded with the builder's convex-mesh API; non-convex kinds are unions of convex parts in one actor.
+Convex meshes are written once to a cache folder (``MANISKILL_PNP_CACHE`` or ``~/.cache/maniskill_pnp``, see
+:func:`~maniskill_pnp.tasks.asset_cache.mesh_cache_dir`) and loaded with the builder's convex-mesh API; non-convex
+kinds are unions of convex parts in one actor.
 
 A ``mesh`` object is the file's mesh, scaled (one factor or three per-axis factors) and centred on its bounding box,
 in the file's axes (z up). Its visual shape is the file itself (in ``color``, or with the file's own materials and
@@ -41,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 import sapien
+
+from maniskill_pnp.tasks.asset_cache import mesh_cache_dir
 
 #: The procedural kinds (random clutters draw among them).
 KINDS = ("cuboid", "cylinder", "sphere", "L", "T", "U", "arch", "wedge", "hull")
@@ -282,12 +285,6 @@ def _hull_points(spec: ObjectSpec) -> np.ndarray:
     return pts - (pts.max(0) + pts.min(0)) / 2
 
 
-def _cache_dir() -> Path:
-    root = Path(os.environ.get("MANISKILL_PNP_CACHE", Path.home() / ".cache" / "maniskill_pnp")) / "meshes"
-    root.mkdir(parents=True, exist_ok=True)
-    return root
-
-
 def mesh_file(spec: ObjectSpec) -> Path:
     """Path of the convex-hull mesh (.obj) of a mesh kind, written on first use."""
     import trimesh
@@ -296,7 +293,7 @@ def mesh_file(spec: ObjectSpec) -> Path:
     if verts is None:
         raise ValueError(f"{spec.kind} objects have no mesh")
     key = hashlib.sha1(np.round(verts, 6).tobytes()).hexdigest()[:16]
-    path = _cache_dir() / f"{spec.kind}_{key}.obj"
+    path = mesh_cache_dir() / f"{spec.kind}_{key}.obj"
     if not path.exists():
         hull = trimesh.convex.convex_hull(verts)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.obj")

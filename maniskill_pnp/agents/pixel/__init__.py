@@ -3,6 +3,8 @@
 The agent:
 
 * :mod:`~maniskill_pnp.agents.pixel.fcn`: the rotated fully convolutional Q networks over RGB-D heightmaps;
+* :mod:`~maniskill_pnp.agents.pixel.equivariant`: the rotation-equivariant Q network (the ``"equivariant"`` backbone);
+* :mod:`~maniskill_pnp.agents.pixel.rotations`: the rotation indices of a Q-map query, shared by both networks;
 * :mod:`~maniskill_pnp.agents.pixel.policy`: the greedy and ε-greedy actors over their maps;
 * :mod:`~maniskill_pnp.agents.pixel.mask`: the actions that can touch something;
 * :mod:`~maniskill_pnp.agents.pixel.loss`: the executed-pixel DQN loss and the binary-classification baseline;

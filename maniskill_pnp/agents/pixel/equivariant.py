@@ -73,7 +73,7 @@ from e2cnn.nn.modules.r2_conv.basisexpansion_blocks import BlocksBasisExpansion
 from e2cnn.nn.modules.r2_conv.basisexpansion_singleblock import SingleBlockBasisExpansion
 from torch import nn
 
-from maniskill_pnp.agents.pixel.fcn import rotation_query
+from maniskill_pnp.agents.pixel.rotations import rotation_query
 
 #: ImageNet statistics, used to normalise the colour channels (as for the other backbones).
 _RGB_MEAN = (0.485, 0.456, 0.406)

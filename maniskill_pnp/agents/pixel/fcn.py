@@ -51,6 +51,7 @@ import torch.nn.functional as F
 import torchvision
 from torch import nn
 
+from maniskill_pnp.agents.pixel.rotations import rotation_query
 from maniskill_pnp.tasks.pixel_action import PixelActionLayout
 
 #: ImageNet statistics, used to normalise both trunks' inputs (as torchvision's pretrained weights expect).
@@ -153,20 +154,6 @@ def rotate_images(images: torch.Tensor, angles: torch.Tensor, mode: str = "bilin
     theta = theta.to(device=images.device, dtype=images.dtype)
     grid = F.affine_grid(theta, list(images.shape), align_corners=False)
     return F.grid_sample(images, grid, mode=mode, padding_mode="zeros", align_corners=False)
-
-
-def rotation_query(heightmaps: torch.Tensor, rotation: torch.Tensor, num_rotations: int) -> torch.Tensor:
-    """The rotation indices of a ``rotation_maps`` query as a flat int64 tensor, one per heightmap.
-
-    Raises:
-        ValueError: heightmaps are not ``(N, 4, H, W)`` with ``N`` rotations, or an index is outside ``0..R-1``.
-    """
-    rotation = rotation.reshape(-1).long()
-    if rotation.shape[0] != heightmaps.shape[0] or heightmaps.ndim != 4:
-        raise ValueError(f"need heightmaps (N, 4, H, W) and N rotations, got {tuple(heightmaps.shape)}, {tuple(rotation.shape)}")
-    if rotation.numel() and (int(rotation.min()) < 0 or int(rotation.max()) >= num_rotations):
-        raise ValueError(f"rotation index out of range 0..{num_rotations - 1}")
-    return rotation
 
 
 def padded_size(height: int, width: int, multiple: int) -> int:
