@@ -114,6 +114,22 @@ def test_plan_cache_reuses_only_in_the_same_scene(wall_env):
     assert moved.ok and not moved.cached
 
 
+def test_a_query_gives_the_same_plan_whatever_was_planned_before(wall_env):
+    # OMPL's generators are process-wide; each query reseeds them from its own start, goal and scene, so a search
+    # does not depend on how many were run before it (what a reproducible episode needs).
+    prims, a, b = _either_side_of_the_wall(wall_env)
+    prims.planner.cache = None
+    first = prims.planner.plan(a, b)
+    for _ in range(3):
+        assert prims.planner.plan(b, a).ok
+    again = prims.planner.plan(a, b)
+    assert first.ok and len(first.path) >= 2 and np.array_equal(first.path, again.path)
+    other_seed = MotionPrimitives(wall_env, static_actors=STATIC, seed=1)
+    other_seed.world.sync_scene(wall_env.unwrapped.scene)
+    other_seed.planner.cache = None
+    assert other_seed.planner.plan(a, b).ok
+
+
 def test_planner_falls_back_to_the_raw_path_when_the_simplified_one_fails_the_final_check(wall_env, monkeypatch):
     # About one simplified path in ten hugs the wall so closely that the final dense check, which samples the
     # motion at other points than OMPL did, finds a contact. Reject the first (simplified) path to force that case.

@@ -11,6 +11,7 @@ Example:
 
 from __future__ import annotations
 
+import hashlib
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -90,11 +91,14 @@ class JointSpacePlanner:
         max_step: RRT-Connect's maximum extension per step (rad).
         resolution: Joint-space distance (rad, L2) between validity checks along a motion; finer than the
             final dense check of :meth:`CollisionWorld.path_valid`, so OMPL rarely returns what that check rejects.
-        simplify_time: Seconds the OMPL path simplifier may spend shortening a solution.
+        simplify_steps: Rounds of OMPL's path simplifier on a solution (each: remove redundant vertices, then
+            shortcut partially); counted in rounds, not seconds, so a plan does not depend on the machine's load.
         cache: Plan cache (a fresh one by default); pass ``None`` to disable caching.
         attempts: RRT-Connect runs per query before giving up (a new run after a failed final check).
-        seed: Seed of OMPL's random number generator (for reproducible plans). OMPL's generator is global to
-            the process and can be seeded only before its first use, so the first planner's seed holds.
+        seed: Base seed of the plans (None: OMPL's own seeding, plans not reproducible). Each RRT-Connect query is
+            seeded from this seed, its start, goal and scene alone (:func:`query_seed`), so the same query gives
+            the same path whatever was planned before in the process; only a search that runs out of its time
+            budget can end differently on a slower machine.
     """
 
     def __init__(
@@ -104,7 +108,7 @@ class JointSpacePlanner:
         time_budget: float = 2.0,
         max_step: float = 0.3,
         resolution: float = 0.004,
-        simplify_time: float = 0.2,
+        simplify_steps: int = 1,
         cache: PlanCache | None | str = "default",
         attempts: int = 3,
         seed: int | None = 0,
@@ -114,7 +118,8 @@ class JointSpacePlanner:
         from ompl import util as ou
 
         ou.setLogLevel(ou.LOG_WARN)
-        _seed_ompl_once(ou, seed)
+        self._ou = ou
+        self.seed = seed
         self.world = world
         self.time_budget = time_budget
         self.attempts = attempts
@@ -130,10 +135,13 @@ class JointSpacePlanner:
         self._setup = og.SimpleSetup(self._space)
         self._setup.setStateValidityChecker(self._valid_state)
         self._setup.getSpaceInformation().setStateValidityCheckingResolution(resolution / self._space.getMaximumExtent())
-        rrt = og.RRTConnect(self._setup.getSpaceInformation())
-        rrt.setRange(max_step)
-        self._setup.setPlanner(rrt)
-        self._simplify_time = simplify_time
+        self._max_step = max_step
+        # The space's one-time set-up draws from OMPL's generators; done here, it precedes every seeded search.
+        self._setup.getSpaceInformation().setup()
+        if simplify_steps < 0:
+            raise ValueError(f"simplify_steps must be >= 0, got {simplify_steps!r}")
+        self._simplify_steps = int(simplify_steps)
+        self._og = og
         self._q = np.zeros(dof)
 
     def _valid_state(self, state) -> bool:
@@ -172,7 +180,9 @@ class JointSpacePlanner:
             path = self.cache.get(key)
             if path is not None and self.world.path_valid(path):
                 return PlanResult(path.copy(), cached=True)
-        for _ in range(self.attempts):
+        for attempt in range(self.attempts):
+            if self.seed is not None:
+                _reseed_ompl(self._ou, query_seed(self.seed, q_start, q_goal, self.world.fingerprint(), attempt))
             path, reason = self._rrt_connect(q_start, q_goal, time_budget or self.time_budget)
             if path is not None:
                 break
@@ -185,33 +195,61 @@ class JointSpacePlanner:
 
     def _rrt_connect(self, q_start: np.ndarray, q_goal: np.ndarray, budget: float) -> tuple[np.ndarray | None, str]:
         ss = self._setup
-        ss.clear()
+        # A new RRT-Connect per search: its sampler and trees take their generators from OMPL's (re)seeded seed
+        # generator (a cleared planner keeps state from earlier searches, so its next search would not repeat).
+        rrt = self._og.RRTConnect(ss.getSpaceInformation())
+        rrt.setRange(self._max_step)
+        ss.setPlanner(rrt)
+        ss.clear()  # and no solution of an earlier search
         ss.setStartAndGoalStates(self._state(q_start), self._state(q_goal))
         ss.solve(budget)
         if not ss.haveExactSolutionPath():  # solve() is truthy for approximate solutions too
             return None, f"RRT-Connect found no collision-free path in {budget:.1f} s"
-        raw = self._solution(q_start, q_goal)
-        ss.simplifySolution(self._simplify_time)
+        solution = ss.getSolutionPath()
+        raw = self._states(solution, q_start, q_goal)
+        # A simplifier of this query (its generator seeded as the search's), run for a fixed number of rounds:
+        # OMPL's time-bounded simplifySolution finishes its current pass past the bound (seconds over a 0.2 s
+        # budget on 2 busy cores) and shortens a path by as much as the machine's load lets it.
+        simplifier = self._og.PathSimplifier(ss.getSpaceInformation())
+        shortened = self._og.PathGeometric(solution)
+        for _ in range(self._simplify_steps):
+            simplifier.reduceVertices(shortened)
+            simplifier.partialShortcutPath(shortened)
         # OMPL and the final dense check sample a motion at different points, so a path that grazes an obstacle
         # can pass one and fail the other; the simplifier's shortcuts are the usual culprits. The raw RRT-Connect
         # path is then the fallback before a new search.
-        for path in (self._solution(q_start, q_goal), raw):
+        for path in (self._states(shortened, q_start, q_goal), raw):
             if self.world.path_valid(path):
                 return path, ""
         return None, "both the simplified and the raw RRT-Connect path failed the final collision check"
 
-    def _solution(self, q_start: np.ndarray, q_goal: np.ndarray) -> np.ndarray:
-        states = self._setup.getSolutionPath().getStates()
+    def _states(self, solution, q_start: np.ndarray, q_goal: np.ndarray) -> np.ndarray:
+        states = solution.getStates()
         path = np.array([[s[i] for i in range(self._dof)] for s in states], dtype=np.float64)
         path[0], path[-1] = q_start, q_goal
         return path
 
 
-_OMPL_SEEDED: list[int] = []  # OMPL's RNG is process-global: remember whether it was seeded
+def query_seed(seed: int, q_start: np.ndarray, q_goal: np.ndarray, scene: str, attempt: int = 0) -> int:
+    """The seed of one planning query: a hash of the planner's ``seed``, the start and goal (to 1e-6 rad), the
+    scene's fingerprint and the attempt number, in 1..2**31-1 (OMPL rejects 0)."""
+    h = hashlib.sha256()
+    h.update(np.int64(seed).tobytes())
+    for q in (q_start, q_goal):
+        h.update(np.round(np.asarray(q, dtype=np.float64), 6).tobytes())
+    h.update(scene.encode())
+    h.update(np.int64(attempt).tobytes())
+    return 1 + int.from_bytes(h.digest()[:8], "little") % (2**31 - 2)
 
 
-def _seed_ompl_once(ou, seed: int | None) -> None:
-    if seed is None or _OMPL_SEEDED:
-        return
-    ou.RNG.setSeed(int(seed) + 1)  # OMPL rejects seed 0
-    _OMPL_SEEDED.append(int(seed))
+def _reseed_ompl(ou, seed: int) -> None:
+    """Reseed OMPL's process-wide seed generator, from which every new OMPL generator (a planner's sampler, a path
+    simplifier) takes its seed. OMPL logs an error when generators were made before ("changing seed now will not
+    lead to deterministic sampling"): true of the generators that already exist, which the planner no longer uses,
+    so the message is silenced."""
+    level = ou.getLogLevel()
+    ou.setLogLevel(ou.LOG_NONE)
+    try:
+        ou.RNG.setSeed(int(seed))
+    finally:
+        ou.setLogLevel(level)

@@ -207,6 +207,10 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         layouts = self._resolve_layouts(layout) if layout_file is None else self._load_layout_files(layout_file, layout)
         num_objects_range = (int(lo), int(hi)) if layouts is None else (min(map(len, layouts)), max(map(len, layouts)))
         n = int(kwargs.get("num_envs", 1))  # ManiSkill's __init__ resets the envs, so the per-env state comes first
+        # PhysX carries contact and broad-phase state from one episode into the next, so the same drop settles into
+        # another scene after other episodes; a new PhysX scene per episode makes reset(seed) depend on the seed alone.
+        # GPU-batched envs reset one env at a time, which ManiSkill cannot combine with a reconfiguration.
+        kwargs.setdefault("reconfiguration_freq", 1 if n == 1 else 0)
         #: The objects: the pool of actors and each env's episode objects.
         self.clutter = ClutterPool(self.workspace, n, layouts, num_objects_range, kinds, bool(loosely_packed), float(min_gap),
                                    packed_fraction=float(packed_fraction), size=self.POOL_SIZE, library_seed=self.LIBRARY_SEED, settle=self.SETTLE,
