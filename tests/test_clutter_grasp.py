@@ -148,3 +148,24 @@ def test_faults_are_detected_and_truncate(env):
     assert info["fault_reason"] == "a fault found after the step"
     _, info = env.reset(seed=2)
     assert base.detect_faults()[0] == "" and info["fault"].tolist() == [False] and info["fault_reason"] == ""
+
+
+def test_a_grasp_that_carries_two_objects_places_two():
+    """Two 3.5 cm cubes side by side, touching: jaws closing along the pair (7 cm, the hand opens to 8) lift both,
+    and both land in the bin: ``placed_objects`` counts 2 for the one grasp."""
+    ws = WorkspaceSpec()
+    cx, cy = ws.center
+    half = 0.0175
+    cube = ObjectSpec("cuboid", (half,) * 3)  # half sizes
+    layout = [(cube, (cx - half, cy, ws.table_z + half)), (cube, (cx + half, cy, ws.table_z + half))]
+    e = gym.make("ClutterGrasp-v1", layout=layout, **CPU)
+    try:
+        e.reset(seed=0)
+        u = e.unwrapped
+        row, col = ws.world_to_pixel([cx, cy, 0.0])
+        _, reward, terminated, _, info = e.step(u.action_layout.encode(0, 0, int(row), int(col)))  # rotation 0: jaws along x
+        assert info["grasp_success"].item() and info["place_success"].item(), info["reason"]
+        assert info["placed_objects"].tolist() == [2] and info["objects_in_bin"].item() == 2
+        assert reward.item() == 1.0 and terminated.item()
+    finally:
+        e.close()

@@ -194,23 +194,25 @@ def outcome_frames(primitive, reward, grasped, placed, done, slide_changed=None,
     n = len(primitive)
     flags = lambda values: torch.tensor(values, dtype=torch.bool).reshape(n, 1)  # noqa: E731
     nxt = dict(primitive_index=torch.tensor(primitive).reshape(n, 1), reward=torch.tensor(reward).reshape(n, 1),
-               grasp_success=flags(grasped), place_success=flags(placed), done=flags(done), terminated=flags(done),
+               grasp_success=flags(grasped), placed_objects=torch.tensor(placed, dtype=torch.int64).reshape(n, 1),
+               done=flags(done), terminated=flags(done),
                slide_changed=flags(slide_changed or [False] * n), fault=flags(fault or [False] * n))
     return TensorDict(action=torch.arange(n), next=nxt, batch_size=[n])
 
 
 def test_outcome_tracker_reads_grasps_places_and_episodes_from_the_outcome_keys():
     tracker = OutcomeTracker(GS, window=10)
-    # grasp + place, slide that changed the scene, failed grasp, invalid action (no primitive ran), grasp and hold
+    # grasp placing two objects, slide that changed the scene, failed grasp, invalid action (no primitive ran),
+    # grasp and hold
     frames = outcome_frames(primitive=[0, 1, 0, -1, 0], reward=[1.0, 0.5, 0.0, 0.0, 0.8],
-                            grasped=[True, False, False, False, True], placed=[True, False, False, False, False],
+                            grasped=[True, False, False, False, True], placed=[2, 0, 0, 0, 0],
                             done=[False, False, False, False, True], slide_changed=[False, True, False, False, False],
                             fault=[False, False, False, False, True])
     finished = tracker.add(frames)
     assert tracker.grasp_success == pytest.approx(2 / 3) and tracker.last_grasps == 2
-    assert tracker.success_rate == pytest.approx(1 / 5)
+    assert tracker.success_rate == pytest.approx(2 / 5)  # objects placed / actions
     assert tracker.faults_per_100_actions == pytest.approx(20.0) and tracker.last_faults == 1
-    assert finished == [dict(actions=5, placed=1, success_rate=0.2, completed=True)]
+    assert finished == [dict(actions=5, placed=2, success_rate=0.4, cleared=True)]
 
 
 def test_action_log_survives_a_resume_and_feeds_the_curves(tmp_path):
@@ -290,7 +292,7 @@ def test_training_metrics_and_evaluation_agree_on_the_same_actions(tmp_path):
         assert sum(int(r[key]) for r in rows) == sum(getattr(t, tally_key) for t in tallies), key
     for row, info in zip(rows, infos):  # and step by step
         assert int(row["primitive"]) == int(info["primitive_index"])
-        assert int(row["grasped"]) == int(info["grasp_success"]) and int(row["placed"]) == int(info["place_success"])
+        assert int(row["grasped"]) == int(info["grasp_success"]) and int(row["placed"]) == int(info["placed_objects"])
         assert int(row["slide_changed"]) == int(info["slide_changed"]) and int(row["fault"]) == int(info["fault"])
     kinds = {primitives[int(r["primitive"])] for r in rows if int(r["primitive"]) >= 0}
     assert "grasp" in kinds and kinds & {"left_slide", "right_slide"}, kinds  # both kinds of action were compared

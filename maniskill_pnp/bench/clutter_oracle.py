@@ -2,7 +2,8 @@
 
 Runs seeded loosely packed scenes to the end with :class:`~maniskill_pnp.tasks.clutter_oracle.HeightmapGraspOracle`
 (highest pixel of an isolated object, jaws across its shorter side) and prints the metrics of ``docs/metrics.md``
-(``success_rate``, ``grasp_success``, ``completion``, ``action_efficiency``) and the time of one grasp step broken
+(``success_rate``, ``grasp_success``, ``completion``, ``action_efficiency``, counted as ``eval-clutter`` counts them)
+and the time of one grasp step broken
 down into render, heightmap, oracle and motion (planning included); writes JSON.
 """
 
@@ -16,6 +17,7 @@ from pathlib import Path
 import gymnasium as gym
 from tqdm import tqdm
 
+from maniskill_pnp.agents.pixel.evaluate import EpisodeTally, summarize
 from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.runtime import default_backends
 from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
@@ -44,7 +46,8 @@ def run(cfg: ClutterOracleBenchConfig) -> dict:
     per_scene, times = [], {"render": [], "heightmap": [], "oracle": [], "motion": [], "planning": [], "step": []}
     for seed in tqdm(range(cfg.scenes), desc="scenes", unit="scene"):
         obs, info = env.reset(seed=seed)
-        actions = grasps = placed = 0
+        objects = int(info["objects_remaining"])
+        tally = EpisodeTally(env.unwrapped.primitive_names)
         done = False
         while not done:
             t0 = time.perf_counter()
@@ -55,26 +58,15 @@ def run(cfg: ClutterOracleBenchConfig) -> dict:
             times["oracle"].append(t_oracle)
             for part in ("render", "heightmap", "motion", "planning"):
                 times[part].append(env.unwrapped.step_timings[part])
-            actions += 1
-            grasps += int(info["grasp_success"])
-            placed += int(info["place_success"])
+            tally.add(info)
             done = bool(terminated.item() or truncated.item())
-        per_scene.append({
-            "seed": seed, "actions": actions, "grasps": grasps, "placed": placed, "cleared": bool(terminated.item()),
-            "lost": int(info["lost_objects"]),
-        })
+        per_scene.append(dict(seed=seed, objects=objects, actions=tally.actions, grasp_attempts=tally.grasp_attempts,
+                              grasps=tally.grasps, placed=tally.placed, cleared=bool(terminated.item()),
+                              lost=int(info["lost_objects"]), max_failure_run=tally.max_failure_run, faults=tally.faults))
     env.close()
-    total_actions = sum(s["actions"] for s in per_scene)
-    cleared = [s for s in per_scene if s["cleared"]]
-    results = {
-        "success_rate": statistics.mean(s["placed"] / s["actions"] for s in per_scene),
-        "grasp_success": sum(s["grasps"] for s in per_scene) / total_actions,
-        "completion": len(cleared) / len(per_scene),
-        "action_efficiency": (sum(cfg.num_objects for _ in cleared) / sum(s["actions"] for s in cleared)) if cleared else 0.0,
-        "scenes": per_scene,
-        "step_time_s_median": {k: statistics.median(v) for k, v in times.items()},
-        "step_time_s_mean": {k: statistics.mean(v) for k, v in times.items()},
-    }
+    results = dict(summarize(per_scene), scenes=per_scene,
+                   step_time_s_median={k: statistics.median(v) for k, v in times.items()},
+                   step_time_s_mean={k: statistics.mean(v) for k, v in times.items()})
     path = write_report(cfg.out, "clutter_oracle", {k: str(v) for k, v in asdict(cfg).items()}, results)
     print_machine()
     print(f"ClutterGrasp-v1, heightmap oracle, {cfg.scenes} scenes x {cfg.num_objects} objects (loosely packed)")

@@ -5,6 +5,7 @@
   (random orientation, anywhere in the spawn square, dropped from staggered heights so they pile up).
 * :func:`sample_packed` draws tightly packed clusters: upright objects side by side, a few millimetres apart, so
   the jaws fit between few of them (a slide has to make room first).
+* :func:`redrop_poses` drops again the objects of a drop that settled outside the workspace.
 * :func:`validate_layout` checks an explicit layout (a list of ``(ObjectSpec, pose)``) by the objects' collision
   shapes (:mod:`~maniskill_pnp.tasks.layout_check`): inside the workspace, above the table, no two interpenetrating,
   and touching objects at rest in a short physics settle; it raises a ``ValueError`` naming the culprits.
@@ -120,6 +121,46 @@ def sample_clutter(
                 z = max(z, top2 + r + 0.005)
         dropped.append((xy, r, z + r))
         poses.append(sapien.Pose(p=[xy[0], xy[1], z], q=q / np.linalg.norm(q)))
+    return poses
+
+
+def redrop_poses(
+    rng: np.random.Generator,
+    specs: Sequence[ObjectSpec],
+    resting: Sequence[tuple[ObjectSpec, np.ndarray]],
+    workspace: WorkspaceSpec,
+    upright: bool = True,
+    gap: float = 0.01,
+    tries: int = 100,
+) -> list[sapien.Pose]:
+    """Poses that drop ``specs`` again over the spawn square of ``workspace``, beside or onto the objects ``resting``
+    there (``(spec, position)`` each): the objects of a drop that settled outside the workspace.
+
+    Each goes where its bounding circle stays ``gap`` clear of every other one's, when one of ``tries`` random
+    points is such a place, released just above the table; else at the last point tried, released just above the
+    bounding spheres it overlaps (it lands on the pile). ``upright``: standing with a random yaw (as loosely packed
+    and packed clutters stand); otherwise a random orientation (as piles fall).
+    """
+    (x0, x1), (y0, y1) = workspace.spawn_bounds
+    others = [(np.asarray(p, dtype=np.float64), float(np.linalg.norm(spec.extents)) / 2) for spec, p in resting]
+    poses = []
+    for spec in specs:
+        r = float(np.linalg.norm(spec.extents)) / 2
+        for _ in range(tries):
+            xy = rng.uniform([x0, y0], [x1, y1])
+            if all(np.hypot(*(xy - p[:2])) >= r + r2 + gap for p, r2 in others):
+                break
+        z = workspace.table_z + (spec.extents[2] / 2 if upright else r) + 0.002
+        for p, r2 in others:
+            if np.hypot(*(xy - p[:2])) < r + r2 + gap:
+                z = max(z, p[2] + r2 + r + 0.005)
+        if upright:
+            q = yaw_quat(rng.uniform(-np.pi, np.pi))
+        else:
+            q = rng.normal(size=4)
+            q /= np.linalg.norm(q)
+        poses.append(sapien.Pose(p=[xy[0], xy[1], z], q=q))
+        others.append((np.array([xy[0], xy[1], z]), r))
     return poses
 
 

@@ -145,6 +145,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     GRIPPER_CONTACT_FORCE = 1e-3
     #: The settle after dropping the clutter.
     SETTLE = SettleSpec()
+    #: Times the objects of a random clutter that settled outside the workspace are dropped again (and settle).
+    REDROP_ROUNDS = 5
 
     def __init__(
         self,
@@ -227,7 +229,6 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.num_actions = np.zeros(n, dtype=np.int64)
         self.consecutive_failures = np.zeros(n, dtype=np.int64)
         self.num_grasps = np.zeros(n, dtype=np.int64)
-        self.num_placed = np.zeros(n, dtype=np.int64)
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
         self._use_discrete_actions(self.action_layout.size)
 
@@ -296,15 +297,22 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         rngs = [np.random.default_rng(int(self._batched_episode_rng[e].randint(2**31))) for e in envs]
         self.clutter.draw(envs, rngs, lambda rng: self._choose_layout(rng, options), self.device)
         for e in envs:
-            self.num_actions[e] = self.consecutive_failures[e] = self.num_grasps[e] = self.num_placed[e] = 0
+            self.num_actions[e] = self.consecutive_failures[e] = self.num_grasps[e] = 0
             self.last[e] = self._initial_last()
         prims = self._primitives()
         for e in envs:
             prims[e].reset()
         lockstep = self._lockstep
         steps0 = lockstep.control_steps
+        settling = list(envs)
         with self._all_envs_live():  # the other envs' arms hold while the reset ones settle
-            lockstep.run([self.clutter.settle_motion(e, self.home_qpos) if e in envs else None for e in range(self.num_envs)])
+            for _ in range(1 + self.REDROP_ROUNDS):
+                lockstep.run([self.clutter.settle_motion(e, self.home_qpos) if e in settling else None for e in range(self.num_envs)])
+                # objects of a dense drop that rolled off the workspace fall again, so the scene starts with all it drew
+                counts = self.clutter.redrop(envs, rngs, self.device)
+                settling = [e for e, n in zip(envs, counts) if n]
+                if not settling:
+                    break
         self.settle_steps[envs] = lockstep.control_steps - steps0
         self._episode_ready = True
 
@@ -342,7 +350,15 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         return Decision(index, self.PRIMITIVES[primitive], (rot, row, col))
 
     def _snapshot(self, env: int) -> dict:
-        return dict(height=self._height[env], lost=self.clutter.status(env).count("lost"))
+        status = self.clutter.status(env)
+        return dict(height=self._height[env], lost=status.count("lost"), in_bin=status.count("bin"))
+
+    def _object_moves(self, env: int, before: dict) -> dict:
+        """The objects env ``env``'s action put into the bin (``placed_objects``) and out of the workspace other than
+        into the bin (``knocked_out``), from the counts ``before`` it (:meth:`_snapshot`)."""
+        status = self.clutter.status(env)
+        return dict(placed_objects=max(0, status.count("bin") - before["in_bin"]),
+                    knocked_out=max(0, status.count("lost") - before["lost"]))
 
     def _step_program(self, env: int, decision: Decision) -> Program:
         """Env ``env``'s whole step as one program: the decoded primitive, then the way home (planned a second time
@@ -359,12 +375,12 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     def _judge(self, env: int, decision: Decision, result: dict, before: dict) -> Judgement:
         grasped, placed = result["grasp_success"], result["place_success"]
         r = self.rewards
-        return Judgement(r["place"] if placed else r["grasp"] if grasped else 0.0, bool(grasped), result)
+        outcome = dict(result, **self._object_moves(env, before))
+        return Judgement(r["place"] if placed else r["grasp"] if grasped else 0.0, bool(grasped), outcome)
 
     def _record(self, env: int, decision: Decision, judged: Judgement) -> None:
         self.num_actions[env] += 1
         self.num_grasps[env] += int(judged.outcome.get("grasp_success", False))
-        self.num_placed[env] += int(judged.outcome.get("place_success", False))
         self.consecutive_failures[env] = 0 if judged.success else self.consecutive_failures[env] + 1
 
     def _episode_end(self, faults: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -171,8 +171,9 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
             return super()._judge(env, decision, result, before)
         n = changed_pixels(before["height"], self._height[env])
         changed = n > change_threshold(*before["height"].shape)
-        knocked_out = self.clutter.status(env).count("lost") - before["lost"]
-        outcome = dict(result, slide_changed=changed, changed_pixels=n, knocked_out=knocked_out)
+        moves = self._object_moves(env, before)
+        knocked_out = moves["knocked_out"]
+        outcome = dict(result, slide_changed=changed, changed_pixels=n, **moves)
         if knocked_out > 0:  # pushing objects off the workspace is no progress: no reward, and it counts as a failure
             outcome["reason"] = f"the slide knocked {knocked_out} object(s) out of the workspace"
             return Judgement(0.0, False, outcome)

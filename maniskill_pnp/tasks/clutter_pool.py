@@ -18,7 +18,7 @@ import torch
 from mani_skill.utils.structs.pose import Pose
 
 from maniskill_pnp.planning.lockstep import Motion
-from maniskill_pnp.tasks.clutter import object_status, random_specs, sample_clutter, sample_packed
+from maniskill_pnp.tasks.clutter import object_status, random_specs, redrop_poses, sample_clutter, sample_packed
 from maniskill_pnp.tasks.objects import ObjectSpec, build_object
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
@@ -139,6 +139,38 @@ class ClutterPool:
             actor.set_pose(Pose.create_from_pq(p=p, q=q))
             actor.set_linear_velocity(zeros)
             actor.set_angular_velocity(zeros)
+
+    def redrop(self, envs: list[int], rngs: list[np.random.Generator], device) -> list[int]:
+        """Drop again the objects of ``envs``' random clutters that settled outside the workspace
+        (:func:`~maniskill_pnp.tasks.clutter.redrop_poses`, from each env's RNG), beside or onto those inside; the
+        objects of explicit layouts stay as they are. Returns how many objects each env drops again; the caller
+        lets them settle (:meth:`settle_motion`) and calls again until none is outside. Call it with the scene's reset
+        mask lifted (it sets every env's row of a moved actor)."""
+        counts, new_poses = [], {}  # (k, pool index) -> pose
+        for k, (e, rng) in enumerate(zip(envs, rngs)):
+            status = self.status(e) if self.layout_index[e] < 0 else []
+            out = [j for j, where in enumerate(status) if where == "lost"]
+            counts.append(len(out))
+            if not out:
+                continue
+            index, actors = self.active_index[e], self.active_actors[e]
+            resting = [(self.specs[i], a.pose.p[e].cpu().numpy()) for i, a, where in zip(index, actors, status) if where == "workspace"]
+            upright = self.loosely_packed or bool(self.packed[e])
+            poses = redrop_poses(rng, [self.specs[index[j]] for j in out], resting, self.workspace, upright=upright)
+            new_poses.update({(k, index[j]): pose for j, pose in zip(out, poses)})
+        for i in sorted({i for _, i in new_poses}):  # every env's row of each moved actor: the others as they are
+            actor = self.actors[i]
+            raw = actor.pose.raw_pose.clone()
+            lin, ang = actor.linear_velocity.clone(), actor.angular_velocity.clone()
+            for k, e in enumerate(envs):
+                pose = new_poses.get((k, i))
+                if pose is not None:
+                    raw[e] = torch.as_tensor(np.concatenate([pose.p, pose.q]), dtype=raw.dtype, device=device)
+                    lin[e] = ang[e] = 0.0
+            actor.set_pose(Pose.create(raw))
+            actor.set_linear_velocity(lin)
+            actor.set_angular_velocity(ang)
+        return counts
 
     def settle_motion(self, env: int, home: np.ndarray) -> Motion:
         """Env ``env``'s settle: its arm held at ``home`` with the gripper open until its objects are at rest."""

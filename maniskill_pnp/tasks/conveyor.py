@@ -373,7 +373,7 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
         else:
             self.outcome = f"grasp failed: {res.stage}: {res.reason}"
         self.phase = "done"
-        return dict(grasp_success=bool(res.grasped), place_success=bool(placed))
+        return dict(grasp_success=bool(res.grasped), place_success=bool(placed), placed_objects=int(bool(placed)))
 
     def _judge(self, env: int, decision: Decision, result: dict, before) -> Judgement:
         if decision.primitive == "grasp":

@@ -29,18 +29,19 @@ from maniskill_pnp.planning.lockstep import LockstepExecutor, Program, drive
 from maniskill_pnp.tasks.registration import SeededNpRandom
 
 #: The outcome of each env's last action, in ``info`` after every reset and step as tensors of shape
-#: ``(num_envs,)`` (also for one env): what the gripper sensed, whether the object landed in the bin, whether a
-#: slide changed the scene and how many objects it pushed out of the workspace, whether the action was impossible
-#: in that state (executed as a failed attempt), whether the episode cannot go on (``info["fault_reason"]`` says
-#: why), and which primitive ran (-1 after a reset or an invalid action).
-OUTCOME_KEYS = ("grasp_success", "place_success", "slide_changed", "knocked_out", "invalid_action", "fault",
-                "primitive_index")
+#: ``(num_envs,)`` (also for one env): what the gripper sensed, whether the held object landed in the bin, how many
+#: objects came to rest in the bin (a grasp that carries two places two), whether a slide changed the scene, how
+#: many objects the action pushed or dropped out of the workspace, whether the action was impossible in that state
+#: (executed as a failed attempt), whether the episode cannot go on (``info["fault_reason"]`` says why), and which
+#: primitive ran (-1 after a reset or an invalid action).
+OUTCOME_KEYS = ("grasp_success", "place_success", "placed_objects", "slide_changed", "knocked_out", "invalid_action",
+                "fault", "primitive_index")
 
 
 def no_outcome() -> dict:
     """The outcome entries of an env that has not acted yet (after a reset)."""
-    return dict(grasp_success=False, place_success=False, slide_changed=False, knocked_out=0, invalid_action=False,
-                fault=False, fault_reason="", primitive_index=-1, primitive="")
+    return dict(grasp_success=False, place_success=False, placed_objects=0, slide_changed=False, knocked_out=0,
+                invalid_action=False, fault=False, fault_reason="", primitive_index=-1, primitive="")
 
 
 def batch_infos(infos: list[dict], device) -> dict:

@@ -22,12 +22,18 @@ evaluated, or only the layout files when there are some.
 
 Metrics (``docs/metrics.md``, computed from the env's ``info`` of every step):
 
-* ``success_rate`` (thesis): objects placed in the bin / actions, per episode, averaged over episodes.
+* ``success_rate`` (thesis): objects placed in the bin / actions, per episode, averaged over episodes (objects, not
+  actions: a grasp that carries two objects into the bin places two, ``info["placed_objects"]``).
 * ``grasp_success``: successful grasps / grasp attempts, over all episodes.
-* ``completion`` (VPG): episodes cleared with no run of more than :data:`MAX_FAILURE_RUN` consecutive failures
-  (failed grasps, slides that changed nothing) / episodes.
-* ``action_efficiency`` (VPG): objects / actions, summed over the completed episodes (0 when none completed, as in
-  :mod:`maniskill_pnp.bench.clutter_oracle`).
+* ``completion`` (VPG): episodes in which every starting object ended in the bin, with no run of more than
+  :data:`MAX_FAILURE_RUN` consecutive failures (failed grasps, slides that changed nothing) / episodes. An object
+  pushed or dropped out of the workspace, by any primitive, is not cleared: that episode is not completed.
+* ``action_efficiency`` (VPG): objects placed / actions, summed over the completed episodes (0 when none completed,
+  as in :mod:`maniskill_pnp.bench.clutter_oracle`).
+
+Two more columns, named for what they measure: ``workspace_cleared`` (episodes whose workspace was emptied, into the
+bin or not: the completion rule before objects were counted) and ``lost_per_scene`` (objects pushed or dropped out of
+the workspace per scene; each episode's count is its ``lost`` column).
 
 Each comes with its standard error over scenes (``<metric>_se``: the spread of the per-scene values of
 :func:`scene_values`), and each scenario with its faults per 100 actions (steps that ended on a fault of the
@@ -75,11 +81,14 @@ MAX_FAILURE_RUN = 10
 METRICS = ("success_rate", "grasp_success", "completion", "action_efficiency")
 #: Columns of the per-episode table.
 EPISODE_COLUMNS = ("scenario", "seed", "objects", "dropped_out", "actions", "grasp_attempts", "grasps", "placed", "lost", "cleared",
-                   "max_failure_run", "success_rate", "grasp_success", "faults", "layout")
+                   "completed", "max_failure_run", "success_rate", "grasp_success", "faults", "layout")
+#: Extra per-scenario columns: the share of episodes whose workspace was emptied (into the bin or not) and the
+#: objects lost (pushed or dropped out of the workspace) per scene.
+EXTRA_COLUMNS = ("workspace_cleared", "lost_per_scene")
 #: Columns of the per-scenario table (Table IX).
-SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS, *(f"{m}_se" for m in METRICS), "faults_per_100_actions")
+SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS, *(f"{m}_se" for m in METRICS), *EXTRA_COLUMNS, "faults_per_100_actions")
 #: Columns of ``eval_table.md``: each metric is shown as "value ± standard error".
-TABLE_HEADER = ("scenario", "episodes", *METRICS, "faults / 100 actions")
+TABLE_HEADER = ("scenario", "episodes", *METRICS, "workspace cleared", "lost / scene", "faults / 100 actions")
 
 
 @dataclass(frozen=True)
@@ -170,9 +179,9 @@ class ClutterEvalConfig:
 
 # ----------------------------------------------------------------------------- metrics
 def is_completed(episode: dict) -> bool:
-    """Whether an episode record counts as completed: cleared with no run of more than :data:`MAX_FAILURE_RUN`
-    consecutive failures."""
-    return bool(episode["cleared"]) and episode["max_failure_run"] <= MAX_FAILURE_RUN
+    """Whether an episode record counts as completed: every object it started with ended in the bin, with no run of
+    more than :data:`MAX_FAILURE_RUN` consecutive failures."""
+    return episode["placed"] >= episode["objects"] and episode["max_failure_run"] <= MAX_FAILURE_RUN
 
 
 def scene_values(episode: dict) -> dict[str, float | None]:
@@ -182,7 +191,7 @@ def scene_values(episode: dict) -> dict[str, float | None]:
     e, completed = episode, is_completed(episode)
     return dict(success_rate=e["placed"] / e["actions"],
                 grasp_success=e["grasps"] / e["grasp_attempts"] if e["grasp_attempts"] else None,
-                completion=float(completed), action_efficiency=e["objects"] / e["actions"] if completed else 0.0)
+                completion=float(completed), action_efficiency=e["placed"] / e["actions"] if completed else 0.0)
 
 
 def standard_error(values) -> float:
@@ -203,8 +212,10 @@ def summarize(episodes: list[dict]) -> dict:
         success_rate=statistics.mean(e["placed"] / e["actions"] for e in episodes),
         grasp_success=sum(e["grasps"] for e in episodes) / attempts if attempts else 0.0,
         completion=len(completed) / len(episodes),
-        action_efficiency=sum(e["objects"] for e in completed) / completed_actions if completed_actions else 0.0,
+        action_efficiency=sum(e["placed"] for e in completed) / completed_actions if completed_actions else 0.0,
         **{f"{m}_se": standard_error(v[m] for v in per_scene) for m in METRICS},
+        workspace_cleared=statistics.mean(float(bool(e["cleared"])) for e in episodes),
+        lost_per_scene=statistics.mean(e["lost"] for e in episodes),
         faults_per_100_actions=100.0 * sum(e.get("faults", 0) for e in episodes) / actions if actions else 0.0,
     )
 
@@ -295,7 +306,7 @@ class EpisodeTally:
         self.actions += 1
         self.grasp_attempts += int(is_grasp_attempt(self.primitives, int(info["primitive_index"])))
         self.grasps += int(info["grasp_success"])
-        self.placed += int(info["place_success"])
+        self.placed += int(info["placed_objects"])
         self.faults += int(info["fault"])
         self.max_failure_run = max(self.max_failure_run, int(info["consecutive_failures"]))
 
@@ -317,8 +328,8 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         The episode record (``EPISODE_COLUMNS``) and the first decision: ``{"color", "depth", "maps", "action"}``.
     """
     obs, info = env.reset(seed=seed, options=None if layout_index is None else {"layout_index": layout_index})
-    # the objects the episode starts with: those in the workspace once the dropped clutter has settled (a dense drop
-    # can roll some off the square; they are counted apart, in dropped_out, and not in lost)
+    # the objects the episode starts with: those in the workspace once the dropped clutter has settled (the task
+    # drops again what rolls off, so dropped_out stays 0 but for a drop that keeps rolling off; it is not in lost)
     objects, dropped_out = int(info["objects_remaining"]), int(info["lost_objects"])
     if actions_per_object is not None:
         cap = max(1, math.floor(actions_per_object * objects))
@@ -346,8 +357,10 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         scenario=scenario, seed=seed, objects=objects, dropped_out=dropped_out, actions=t.actions,
         grasp_attempts=t.grasp_attempts, grasps=t.grasps, placed=t.placed, lost=int(info["lost_objects"]) - dropped_out, cleared=bool(info["success"].item()),
         max_failure_run=t.max_failure_run, success_rate=t.placed / t.actions,
+        completed=False,
         grasp_success=t.grasps / t.grasp_attempts if t.grasp_attempts else 0.0, faults=t.faults, layout=layout,
     )
+    record["completed"] = is_completed(record)
     return record, first
 
 
@@ -417,6 +430,7 @@ def write_tables(rows: list[dict], episodes: list[dict], out: Path) -> tuple[Pat
     ``eval_episodes.csv`` (one row per episode: :data:`EPISODE_COLUMNS`)."""
     md = ["| " + " | ".join(TABLE_HEADER) + " |", "|---" * len(TABLE_HEADER) + "|"]
     md += ["| " + " | ".join([r["scenario"], str(r["episodes"]), *(f"{r[k]:.1%} ± {r[f'{k}_se']:.1%}" for k in METRICS),
+                              f"{r['workspace_cleared']:.1%}", f"{r['lost_per_scene']:.2f}",
                               f"{r['faults_per_100_actions']:.2f}"]) + " |" for r in rows]
     md_path, csv_path, ep_path = out / "eval_table.md", out / "eval_table.csv", out / "eval_episodes.csv"
     atomic_write_bytes(md_path, lambda f: f.write(("\n".join(md) + "\n").encode()))

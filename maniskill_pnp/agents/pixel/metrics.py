@@ -4,10 +4,11 @@ action, read from the outcome the env reports for every step (``info`` keys
 
 Definitions (those of ``docs/metrics.md``): a grasp attempt is an action whose primitive is named ``"grasp"``
 (:func:`is_grasp_attempt`); ``grasp_success`` = grasp attempts that lifted an object (``info["grasp_success"]``) /
-grasp attempts; ``success_rate`` = objects placed in the bin (``info["place_success"]``) / actions; ``faults_per_100_actions`` = actions that ended on a
-fault of the simulation (``info["fault"]``) per 100 actions. Per finished
-episode: ``episode/success_rate`` (its placed objects / its actions), ``episode/completion`` (1 when the workspace
-was cleared) and ``episode/actions``. The greedy evaluation (:mod:`~maniskill_pnp.agents.pixel.evaluate`) counts
+grasp attempts; ``success_rate`` = objects placed in the bin (``info["placed_objects"]``, two for a grasp that
+carries two) / actions; ``faults_per_100_actions`` = actions that ended on a fault of the simulation
+(``info["fault"]``) per 100 actions. Per finished episode: ``episode/success_rate`` (its placed objects / its
+actions), ``episode/cleared`` (1 when its workspace was emptied, whether into the bin or not) and
+``episode/actions``. The greedy evaluation (:mod:`~maniskill_pnp.agents.pixel.evaluate`) counts
 with the same rule from the same keys.
 
 ``actions.csv`` (columns :data:`ACTION_COLUMNS`) is what :mod:`~maniskill_pnp.agents.pixel.curves` plots; on resume
@@ -24,12 +25,12 @@ from tensordict import TensorDictBase
 from maniskill_pnp.agents.collection import streams
 
 #: Columns of a run's ``actions.csv``: one row per action of the ε-greedy behaviour. ``primitive`` is the index of
-#: the primitive that ran (-1: none, an invalid action); ``grasp_attempt``, ``grasped``, ``placed``,
-#: ``slide_changed``, ``fault`` and ``episode_end`` are 0/1.
+#: the primitive that ran (-1: none, an invalid action); ``placed`` is the number of objects the action put into the
+#: bin; ``grasp_attempt``, ``grasped``, ``slide_changed``, ``fault`` and ``episode_end`` are 0/1.
 ACTION_COLUMNS = ("step", "primitive", "action", "reward", "grasp_attempt", "grasped", "placed", "episode_end",
                   "slide_changed", "fault")
 #: The per-step entries of a collector batch (under ``"next"``) the metrics read.
-OUTCOME_ENTRIES = ("primitive_index", "reward", "grasp_success", "place_success", "slide_changed", "fault", "done",
+OUTCOME_ENTRIES = ("primitive_index", "reward", "grasp_success", "placed_objects", "slide_changed", "fault", "done",
                    "terminated")
 
 
@@ -51,7 +52,7 @@ class OutcomeTracker:
     def __init__(self, primitives: tuple[str, ...], window: int, log_path: Path | None = None, start_step: int = 0):
         self.primitives = tuple(primitives)
         self.grasps: deque[bool] = deque(maxlen=window)
-        self.placed: deque[bool] = deque(maxlen=window)
+        self.placed: deque[int] = deque(maxlen=window)
         self.faulted: deque[bool] = deque(maxlen=window)
         self.last_grasps = 0
         self.last_faults = 0
@@ -81,7 +82,7 @@ class OutcomeTracker:
             if attempt:
                 self.grasps.append(bool(grasped))
             self.last_grasps += int(grasped)
-            self.placed.append(bool(placed))
+            self.placed.append(int(placed))
             self.faulted.append(bool(fault))
             self.last_faults += int(fault)
             self.step += 1
@@ -92,7 +93,7 @@ class OutcomeTracker:
             e["actions"] += 1
             e["placed"] += int(placed)
             if d:
-                finished.append(dict(e, success_rate=e["placed"] / e["actions"], completed=bool(t)))
+                finished.append(dict(e, success_rate=e["placed"] / e["actions"], cleared=bool(t)))
                 del self._episodes[stream]
         if self._log is not None:
             self._log.flush()
@@ -126,9 +127,9 @@ def log_scalars(logger, step: int, scalars: dict[str, float]) -> None:
 
 def log_episodes(logger, episodes: list[dict], first: int) -> None:
     """Log finished episodes (from :meth:`OutcomeTracker.add`), numbered from ``first``: ``episode/success_rate``,
-    ``episode/completion`` and ``episode/actions``."""
+    ``episode/cleared`` and ``episode/actions``."""
     for number, e in enumerate(episodes, start=first):
-        log_scalars(logger, number, {"episode/success_rate": e["success_rate"], "episode/completion": float(e["completed"]),
+        log_scalars(logger, number, {"episode/success_rate": e["success_rate"], "episode/cleared": float(e["cleared"]),
                                      "episode/actions": e["actions"]})
 
 

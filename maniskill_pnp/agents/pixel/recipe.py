@@ -26,7 +26,7 @@ length (:class:`~maniskill_pnp.agents.pixel.mask.HeightmapActionMask`).
 Metrics of the ε-greedy behaviour (``docs/metrics.md``), logged as running values over the last ``success_window``
 actions: ``grasp_success`` (grasp attempts that lifted an object / grasp attempts), ``success_rate`` (objects
 placed in the bin / actions) and ``faults_per_100_actions`` (steps that ended on a fault of the simulation; the run's
-total is in ``train_summary.json``); per finished episode also ``episode/success_rate`` and ``episode/completion``
+total is in ``train_summary.json``); per finished episode also ``episode/success_rate`` and ``episode/cleared``
 (:mod:`~maniskill_pnp.agents.pixel.metrics`).
 
 The pieces live beside this module: the config and presets (:mod:`~maniskill_pnp.agents.pixel.config`), the env,

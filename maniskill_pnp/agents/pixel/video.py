@@ -173,7 +173,7 @@ def describe(env, action: int, maps: np.ndarray, obs: dict, index: int) -> dict:
 
 def outcome_lines(info: dict, reward: float, primitive: str) -> list[str]:
     """The outcome of a decision of ``primitive`` as text lines, from the step's ``info``."""
-    lines = [f"reward {reward:.2f}", f"grasped {bool(info['grasp_success'])}", f"placed {bool(info['place_success'])}"]
+    lines = [f"reward {reward:.2f}", f"grasped {bool(info['grasp_success'])}", f"placed {int(info['placed_objects'])}"]
     if primitive != "grasp":
         lines.append(f"scene changed {bool(info['slide_changed'])}")
     lines.append(f"left {int(info['objects_remaining'])} objects")
@@ -232,6 +232,7 @@ def run(cfg: ClutterVideoConfig) -> dict:
             records.append(dict(decision=decision["index"], primitive=decision["primitive"], rotation=decision["rotation"],
                                 row=decision["row"], col=decision["col"], q=decision["q"], reward=float(reward.item()),
                                 grasp_success=bool(info["grasp_success"]), place_success=bool(info["place_success"]),
+                                placed_objects=int(info["placed_objects"]),
                                 objects_remaining=int(info["objects_remaining"]), reason=_reason(info)))
             done = bool(terminated.item() or truncated.item())
         env.unwrapped.set_control_step_callback(None)
@@ -247,7 +248,7 @@ def run(cfg: ClutterVideoConfig) -> dict:
         checkpoint=str(cfg.checkpoint_path), scenario=cfg.scenario if cfg.layout_file is None else cfg.layout_file.stem,
         layout_file=None if cfg.layout_file is None else str(cfg.layout_file), seed=cfg.seed, objects=objects,
         decisions=records,
-        placed=sum(r["place_success"] for r in records), cleared=bool(info["objects_remaining"] == 0), frames=len(frames),
+        placed=sum(r["placed_objects"] for r in records), cleared=bool(info["objects_remaining"] == 0), frames=len(frames),
         train_counters=counters, config={k: str(v) for k, v in dataclasses.asdict(cfg).items()},
         files=dict(video=str(video), strip=str(strip), summary=str(out / "video_summary.json")),
     )
