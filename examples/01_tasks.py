@@ -31,24 +31,15 @@
 
 # %%
 import os
-from pathlib import Path
 
 # MANISKILL_PNP_EXAMPLES_SMALL=1 runs a tiny version of every step (the test suite does); unset, the sizes below are
 # what this notebook runs in a few minutes on 2 CPU cores.
 SMALL = os.environ.get("MANISKILL_PNP_EXAMPLES_SMALL", "0") == "1"
 NUM_OBJECTS = 5 if SMALL else 10  # objects in the random clutters
 
+from maniskill_pnp.notebook import output_dir, show as save_and_show
 
-def repo_root() -> Path:
-    """The checkout holding this notebook (runs/ there is git-ignored), else the working directory."""
-    for folder in (Path.cwd(), *Path.cwd().parents):
-        if (folder / "pyproject.toml").is_file() and (folder / "maniskill_pnp").is_dir():
-            return folder
-    return Path.cwd()
-
-
-OUT = Path(os.environ.get("MANISKILL_PNP_EXAMPLES_OUT") or repo_root() / "runs" / "examples" / "01_tasks")
-OUT.mkdir(parents=True, exist_ok=True)
+OUT = output_dir("01_tasks")  # $MANISKILL_PNP_EXAMPLES_OUT, or runs/examples/01_tasks in the checkout
 print("small sizes:", SMALL, "| outputs in", OUT)
 
 import gymnasium as gym
@@ -65,27 +56,10 @@ assert {"ConveyorProximity-v1", "ClutterGrasp-v1", "ClutterGraspSlide-v1"} <= se
 
 import matplotlib.pyplot as plt
 
-try:
-    from IPython import get_ipython
-except ImportError:  # IPython not installed
-    get_ipython = lambda: None  # noqa: E731
-if get_ipython() is not None:  # in a Jupyter kernel: figures and tables inline
-    from IPython.display import Image, Markdown, display
-else:  # a plain script (`python examples/01_tasks.py`): figure paths and table text on stdout
-
-    def Image(filename: str) -> str:
-        return f"[figure: {filename}]"
-
-    Markdown, display = str, print
-
 
 def show(fig, name: str) -> None:
-    """Save ``fig`` as OUT/<name>.png and show that PNG inline. (Not plt.show(): the package's plot functions switch
-    matplotlib to its non-interactive Agg backend, after which plt.show() shows nothing.)"""
-    path = OUT / f"{name}.png"
-    fig.savefig(path, dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    display(Image(filename=str(path)))
+    """Save ``fig`` as OUT/<name>.png and show it."""
+    save_and_show(fig, name, OUT)
 
 
 # %% [markdown]

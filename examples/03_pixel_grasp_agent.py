@@ -41,17 +41,9 @@ TRAIN_STEPS = 3 if SMALL else 30  # grasp attempts of the training run (README: 
 EVAL_EPISODES = 1 if SMALL else 2  # greedy evaluation scenes
 EVAL_MAX_STEPS = 2 if SMALL else 8  # actions per evaluation scene at most
 
+from maniskill_pnp.notebook import Image, Markdown, display, output_dir, show as save_and_show
 
-def repo_root() -> Path:
-    """The checkout holding this notebook (runs/ there is git-ignored), else the working directory."""
-    for folder in (Path.cwd(), *Path.cwd().parents):
-        if (folder / "pyproject.toml").is_file() and (folder / "maniskill_pnp").is_dir():
-            return folder
-    return Path.cwd()
-
-
-OUT = Path(os.environ.get("MANISKILL_PNP_EXAMPLES_OUT") or repo_root() / "runs" / "examples" / "03_pixel_grasp_agent")
-OUT.mkdir(parents=True, exist_ok=True)
+OUT = output_dir("03_pixel_grasp_agent")  # $MANISKILL_PNP_EXAMPLES_OUT, or runs/examples/03_pixel_grasp_agent in the checkout
 print("small sizes:", SMALL, "| outputs in", OUT)
 
 import dataclasses
@@ -70,27 +62,10 @@ DEVICE = torch.device("cpu")
 
 import matplotlib.pyplot as plt
 
-try:
-    from IPython import get_ipython
-except ImportError:  # IPython not installed
-    get_ipython = lambda: None  # noqa: E731
-if get_ipython() is not None:  # in a Jupyter kernel: figures and tables inline
-    from IPython.display import Image, Markdown, display
-else:  # a plain script (`python examples/03_pixel_grasp_agent.py`): figure paths and table text on stdout
-
-    def Image(filename: str) -> str:
-        return f"[figure: {filename}]"
-
-    Markdown, display = str, print
-
 
 def show(fig, name: str) -> None:
-    """Save ``fig`` as OUT/<name>.png and show that PNG inline. (Not plt.show(): the package's plot functions switch
-    matplotlib to its non-interactive Agg backend, after which plt.show() shows nothing.)"""
-    path = OUT / f"{name}.png"
-    fig.savefig(path, dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    display(Image(filename=str(path)))
+    """Save ``fig`` as OUT/<name>.png and show it."""
+    save_and_show(fig, name, OUT)
 
 
 # %%

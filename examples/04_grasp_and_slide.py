@@ -27,7 +27,6 @@
 
 # %%
 import os
-from pathlib import Path
 
 # MANISKILL_PNP_EXAMPLES_SMALL=1 runs a tiny version of every step (the test suite does); unset, the sizes below are
 # what this notebook runs in a few minutes on 2 CPU cores.
@@ -35,17 +34,9 @@ SMALL = os.environ.get("MANISKILL_PNP_EXAMPLES_SMALL", "0") == "1"
 CENTRE_GRASPS = (1,) if SMALL else (0, 1, 2)  # which bars of the row to try a centre grasp on
 AGENT_STEPS = 2 if SMALL else 5  # greedy steps of the (untrained) G&S agent
 
+from maniskill_pnp.notebook import Image, display, output_dir, show as save_and_show
 
-def repo_root() -> Path:
-    """The checkout holding this notebook (runs/ there is git-ignored), else the working directory."""
-    for folder in (Path.cwd(), *Path.cwd().parents):
-        if (folder / "pyproject.toml").is_file() and (folder / "maniskill_pnp").is_dir():
-            return folder
-    return Path.cwd()
-
-
-OUT = Path(os.environ.get("MANISKILL_PNP_EXAMPLES_OUT") or repo_root() / "runs" / "examples" / "04_grasp_and_slide")
-OUT.mkdir(parents=True, exist_ok=True)
+OUT = output_dir("04_grasp_and_slide")  # $MANISKILL_PNP_EXAMPLES_OUT, or runs/examples/04_grasp_and_slide in the checkout
 print("small sizes:", SMALL, "| outputs in", OUT)
 
 import gymnasium as gym
@@ -65,27 +56,10 @@ torch.manual_seed(0)
 
 import matplotlib.pyplot as plt
 
-try:
-    from IPython import get_ipython
-except ImportError:  # IPython not installed
-    get_ipython = lambda: None  # noqa: E731
-if get_ipython() is not None:  # in a Jupyter kernel: figures and tables inline
-    from IPython.display import Image, Markdown, display
-else:  # a plain script (`python examples/04_grasp_and_slide.py`): figure paths and table text on stdout
-
-    def Image(filename: str) -> str:
-        return f"[figure: {filename}]"
-
-    Markdown, display = str, print
-
 
 def show(fig, name: str) -> None:
-    """Save ``fig`` as OUT/<name>.png and show that PNG inline. (Not plt.show(): the package's plot functions switch
-    matplotlib to its non-interactive Agg backend, after which plt.show() shows nothing.)"""
-    path = OUT / f"{name}.png"
-    fig.savefig(path, dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    display(Image(filename=str(path)))
+    """Save ``fig`` as OUT/<name>.png and show it."""
+    save_and_show(fig, name, OUT)
 
 
 # %% [markdown]
