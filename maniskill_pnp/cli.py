@@ -42,6 +42,14 @@ def _bench(args) -> None:
         from maniskill_pnp.bench.primitives import PrimitivesBenchConfig, run
 
         run(PrimitivesBenchConfig(episodes=args.episodes, out=args.out / "primitives.json"))
+    elif args.which == "scene-counts":
+        from maniskill_pnp.bench.scene_counts import SceneCountsBenchConfig, run as run_counts
+
+        try:
+            cfg = SceneCountsBenchConfig(scenes=_given(args.scenes, 100), out=args.out / "scene_counts.json")
+        except ValueError as e:
+            raise SystemExit(f"bench scene-counts: {e}") from e
+        run_counts(cfg)
     elif args.which == "clutter-oracle":
         from maniskill_pnp.bench.clutter_oracle import ClutterOracleBenchConfig, run as run_oracle
 
@@ -345,7 +353,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="run a benchmark; prints numbers and writes JSON")
     bench.add_argument(
         "which", choices=["primitives", "clutter-oracle", "conveyor", "pixel-memory", "decision-cost", "soak",
-                          "env-overhead", "collection", "decision-breakdown", "batched-decisions", "training-throughput"],
+                          "env-overhead", "collection", "decision-breakdown", "batched-decisions", "training-throughput", "scene-counts"],
         help="primitives: pick-and-place success, planning and wall time; "
         "clutter-oracle: ClutterGrasp-v1 cleared by the scripted heightmap oracle (10 objects, --episodes scenes); "
         "conveyor: train Q-learning and SARSA with the default config, then the random test cases; "
@@ -358,9 +366,12 @@ def build_parser() -> argparse.ArgumentParser:
         "heightmap, network, planning and execution time of --actions greedy decisions of --preset; "
         "batched-decisions: decisions/s of --preset's task on the GPU simulation with each of --num-envs envs "
         "(--actions timed steps each) / the one-env CPU path; training-throughput: training actions per hour of each of "
-        "--variants (PRESET[,FIELD=VALUE...]), trained in turn for --minutes each, ratios against the first",
+        "--variants (PRESET[,FIELD=VALUE...]), trained in turn for --minutes each, ratios against the first; scene-counts: "
+        "objects each density's seeded scenes start with (--scenes per density), with and without the re-drop of "
+        "objects that settle outside the workspace",
     )
     bench.add_argument("--episodes", type=int, default=20, help="seeded episodes (primitives) or scenes (clutter-oracle) (default: %(default)s)")
+    bench.add_argument("--scenes", type=int, default=None, help="scene-counts: seeded scenes per density (default: 100)")
     bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="folder for the JSON report (default: %(default)s)")
     bench.add_argument("--steps", type=int, default=3000, help="conveyor: training steps of each agent (default: %(default)s)")
     bench.add_argument("--actions", type=int, default=None,

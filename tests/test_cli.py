@@ -167,7 +167,8 @@ def jobs(tmp_path_factory):
             ("export-clutter", [*MODULE, "export-clutter", f"clutter/{CLUTTER_RUN}", "--out", "agent.pt"]),
             ("record-clutter", [*MODULE, "record-clutter", "agent.pt", "--max-steps", "1", "--frame-every", "6",
                                 "--out", "clutter_video"]))
-    j.chain(("bench clutter-oracle", [*MODULE, "bench", "clutter-oracle", "--episodes", "1", "--out", "bench"]))
+    j.chain(("bench clutter-oracle", [*MODULE, "bench", "clutter-oracle", "--episodes", "1", "--out", "bench"]),
+            ("bench scene-counts", [*MODULE, "bench", "scene-counts", "--scenes", "1", "--out", "bench"]))
     j.chain(("bench pixel-memory", [*MODULE, "bench", "pixel-memory", "--rotations", "2", "--heightmap-size", "32",
                                     "--num-primitives", "1", "--repeats", "1", "--threads", "1", "--out", "bench"]))
     j.chain(("train-conveyor", [*MODULE, "train-conveyor", "--steps", "30", "--log-interval", "6", "--out", "conveyor"]),
@@ -287,6 +288,17 @@ def test_bench_clutter_oracle(jobs):
     assert len(results["scenes"]) == 1 and results["scenes"][0]["actions"] >= 1
     for key in ("success_rate", "grasp_success", "completion", "action_efficiency"):
         assert 0.0 <= results[key] <= 1.0, key
+
+
+def test_bench_scene_counts(jobs):
+    jobs["bench scene-counts"].ok()
+    results = _report(jobs.out / "bench" / "scene_counts.json", "scene_counts",
+                      ("ClutterGrasp-v1:default", "ClutterGraspSlide-v1:min", "ClutterGraspSlide-v1:medium",
+                       "ClutterGraspSlide-v1:max"))
+    for name, r in results.items():
+        lo, hi = r["redrop"]["range"]
+        assert r["redrop"]["short"] == 0 and lo <= r["redrop"]["mean_start"] <= hi, name  # every drawn object inside
+        assert r["no_redrop"]["mean_start"] <= r["redrop"]["mean_start"], name
 
 
 def test_bench_conveyor(jobs):

@@ -126,7 +126,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     **Success Conditions:**
     - the workspace is clear (episode terminates); it is truncated after ``max_consecutive_failures`` failed
       grasps in a row or ``max_actions`` actions. Objects that leave the workspace other than into the bin are
-      counted in ``info["lost_objects"]``.
+      counted in ``info["lost_objects"]``. Objects that came to rest in the bin are taken out of it after each
+      step (they keep counting as in the bin), so every place drops into an empty bin.
     """
 
     SUPPORTED_ROBOTS = ["panda"]
@@ -371,6 +372,10 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             home = yield from prims.program("go_home")
         outcome["planning_time"] += home.planning_time
         return dict(outcome, home_ok=bool(home.ok), pixel=decision.args)
+
+    def _after_programs(self) -> None:
+        with self._all_envs_live():
+            self.clutter.empty_bin(range(self.num_envs), self.device)
 
     def _judge(self, env: int, decision: Decision, result: dict, before: dict) -> Judgement:
         grasped, placed = result["grasp_success"], result["place_success"]

@@ -95,6 +95,8 @@ class ClutterPool:
         self.layout_index = np.full(n, -1)
         #: Per env: whether its random clutter was packed into tight clusters (``packed_fraction``).
         self.packed = np.zeros(n, dtype=bool)
+        #: Per env: the pool indices of the objects taken out of its bin (:meth:`empty_bin`) this episode.
+        self.emptied: list[set[int]] = [set() for _ in range(n)]
 
     def build(self, scene) -> None:
         """Build the pool's actors in ``scene`` (every sub-scene), parked."""
@@ -130,6 +132,7 @@ class ClutterPool:
             for i, pose in zip(chosen, placed):
                 poses[i][k] = pose
             self.active_index[e] = chosen
+            self.emptied[e] = set()
             self.active[e] = [self.names[i] for i in chosen]
             self.active_actors[e] = [self.actors[i] for i in chosen]
         zeros = torch.zeros(b, 3, device=device)
@@ -158,19 +161,38 @@ class ClutterPool:
             upright = self.loosely_packed or bool(self.packed[e])
             poses = redrop_poses(rng, [self.specs[index[j]] for j in out], resting, self.workspace, upright=upright)
             new_poses.update({(k, index[j]): pose for j, pose in zip(out, poses)})
-        for i in sorted({i for _, i in new_poses}):  # every env's row of each moved actor: the others as they are
-            actor = self.actors[i]
-            raw = actor.pose.raw_pose.clone()
-            lin, ang = actor.linear_velocity.clone(), actor.angular_velocity.clone()
-            for k, e in enumerate(envs):
-                pose = new_poses.get((k, i))
-                if pose is not None:
-                    raw[e] = torch.as_tensor(np.concatenate([pose.p, pose.q]), dtype=raw.dtype, device=device)
-                    lin[e] = ang[e] = 0.0
-            actor.set_pose(Pose.create(raw))
-            actor.set_linear_velocity(lin)
-            actor.set_angular_velocity(ang)
+        for i in sorted({i for _, i in new_poses}):
+            self._move(i, {e: new_poses[k, i] for k, e in enumerate(envs) if (k, i) in new_poses}, device)
         return counts
+
+    def empty_bin(self, envs, device) -> list[int]:
+        """Take the objects that came to rest in the bin of each of ``envs`` out of it (to their parked poses), as a
+        station empties a bin: every place then drops into an empty bin, however many objects came before, and an
+        overfull bin never throws objects out. They keep counting as in the bin (:meth:`status`). Returns how many
+        each env's bin held. Call it with the scene's reset mask lifted (it sets every env's row of a moved actor)."""
+        moves: dict[int, dict[int, sapien.Pose]] = {}
+        counts = []
+        for e in envs:
+            inside = [i for i, where in zip(self.active_index[e], self.status(e)) if where == "bin" and i not in self.emptied[e]]
+            for i in inside:
+                moves.setdefault(i, {})[e] = self._park_pose(i)
+            self.emptied[e].update(inside)
+            counts.append(len(inside))
+        for i, poses in moves.items():
+            self._move(i, poses, device)
+        return counts
+
+    def _move(self, i: int, poses: dict[int, sapien.Pose], device) -> None:
+        """Put pool actor ``i`` at ``poses[e]`` at rest in each env ``e`` of ``poses``; its other envs' rows as they are."""
+        actor = self.actors[i]
+        raw = actor.pose.raw_pose.clone()
+        lin, ang = actor.linear_velocity.clone(), actor.angular_velocity.clone()
+        for e, pose in poses.items():
+            raw[e] = torch.as_tensor(np.concatenate([pose.p, pose.q]), dtype=raw.dtype, device=device)
+            lin[e] = ang[e] = 0.0
+        actor.set_pose(Pose.create(raw))
+        actor.set_linear_velocity(lin)
+        actor.set_angular_velocity(ang)
 
     def settle_motion(self, env: int, home: np.ndarray) -> Motion:
         """Env ``env``'s settle: its arm held at ``home`` with the gripper open until its objects are at rest."""
@@ -185,10 +207,12 @@ class ClutterPool:
                       max_settle=s.max_steps - s.min_steps)
 
     def status(self, env: int) -> list[str]:
-        """Where each of env ``env``'s objects is (:func:`~maniskill_pnp.tasks.clutter.object_status`)."""
+        """Where each of env ``env``'s objects is (:func:`~maniskill_pnp.tasks.clutter.object_status`); objects taken
+        out of the bin (:meth:`empty_bin`) are in the bin."""
         actors = self.active_actors[env]
         pos = np.stack([a.pose.p[env].cpu().numpy() for a in actors]) if actors else np.zeros((0, 3))
-        return object_status(pos, self.workspace)
+        status = object_status(pos, self.workspace)
+        return ["bin" if i in self.emptied[env] else where for i, where in zip(self.active_index[env], status)]
 
     def in_workspace(self, env: int) -> list[str]:
         """Names of env ``env``'s objects still in the workspace."""

@@ -244,6 +244,7 @@ class PrimitiveStepEnv(SeededNpRandom, BaseEnv):
         for e, decision in enumerate(decisions):
             if not decision.valid:
                 self._on_invalid(e, decision)
+        self._after_programs()
         obs = self.get_obs()
         planning_time = 0.0
         faults = self.detect_faults()
@@ -313,6 +314,9 @@ class PrimitiveStepEnv(SeededNpRandom, BaseEnv):
         ``before`` it (:meth:`_snapshot`); called after the observation of the new state."""
         raise NotImplementedError
 
+    def _after_programs(self) -> None:
+        """What the task does once every env's program is done, before the observation; nothing by default."""
+
     def _on_invalid(self, env: int, decision: Decision) -> None:
         """What an impossible action of env ``env`` does to the task's state, before the observation (a failed
         attempt: e.g. the conveyor's episode ends); nothing by default."""
@@ -370,8 +374,9 @@ class PrimitiveStepEnv(SeededNpRandom, BaseEnv):
 
     @contextmanager
     def _all_envs_live(self):
-        """Step the whole scene inside ``_initialize_episode``: the poses set so far are applied (GPU simulation)
-        and ManiSkill's reset mask, which limits setters to the envs being reset, is lifted meanwhile."""
+        """Step the whole scene, or set every env's rows of an actor, inside ``_initialize_episode`` or between a
+        step's programs and its observation: the poses set so far are applied (GPU simulation) and ManiSkill's reset
+        mask, which limits setters to the envs of the last reset, is lifted meanwhile."""
         mask = self.scene._reset_mask
         self.scene._reset_mask = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
         if self.gpu_sim_enabled:
