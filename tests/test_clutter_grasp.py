@@ -167,5 +167,8 @@ def test_a_grasp_that_carries_two_objects_places_two():
         assert info["grasp_success"].item() and info["place_success"].item(), info["reason"]
         assert info["placed_objects"].tolist() == [2] and info["objects_in_bin"].item() == 2
         assert reward.item() == 1.0 and terminated.item()
+        # the bin is emptied after the step: both cubes are parked on the floor, and still count as in the bin
+        assert all(float(a.pose.p[0, 2]) < ws.table_z - 0.5 for a in u.clutter.active_actors[0])
+        assert u.clutter.status(0) == ["bin", "bin"]
     finally:
         e.close()

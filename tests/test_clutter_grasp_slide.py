@@ -236,6 +236,23 @@ def test_density_presets_accept_short_and_long_names():
     assert density_range("complicated") == (3, 7)
 
 
+def test_a_dense_drop_starts_with_every_drawn_object_in_the_workspace():
+    """Seeds whose medium pile rolled 4 and 5 objects off the workspace before the re-drop: they fall again."""
+    e = gym.make("ClutterGraspSlide-v1", num_objects="medium", **CPU)
+    try:
+        u = e.unwrapped
+        u.REDROP_ROUNDS = 0
+        _, info = e.reset(seed=1002)
+        assert info["lost_objects"].item() > 0  # the drop as it falls
+        del u.REDROP_ROUNDS
+        for seed in (1000, 1002):
+            _, info = e.reset(seed=seed)
+            assert info["lost_objects"].item() == 0 and info["objects_remaining"].item() == info["num_objects"].item()
+            assert 15 <= info["num_objects"].item() <= 20
+    finally:
+        e.close()
+
+
 def packed_neighbours(specs, poses) -> list[int]:
     """Per object, how many others stand beside it with the same yaw, 1-3 mm apart along one side (footprints
     overlapping along the other)."""

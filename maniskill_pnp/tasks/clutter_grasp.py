@@ -307,8 +307,10 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         steps0 = lockstep.control_steps
         settling = list(envs)
         with self._all_envs_live():  # the other envs' arms hold while the reset ones settle
-            for _ in range(1 + self.REDROP_ROUNDS):
+            for round_ in range(1 + self.REDROP_ROUNDS):
                 lockstep.run([self.clutter.settle_motion(e, self.home_qpos) if e in settling else None for e in range(self.num_envs)])
+                if round_ == self.REDROP_ROUNDS:
+                    break
                 # objects of a dense drop that rolled off the workspace fall again, so the scene starts with all it drew
                 counts = self.clutter.redrop(envs, rngs, self.device)
                 settling = [e for e, n in zip(envs, counts) if n]
