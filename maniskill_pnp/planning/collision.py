@@ -13,12 +13,16 @@ Example:
 from __future__ import annotations
 
 import hashlib
+import os
+import xml.etree.ElementTree as ET
 from collections.abc import Collection, Iterable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import sapien
 
+from maniskill_pnp.cache import cache_dir
 from maniskill_pnp.planning.robot import ArmSpec
 
 # A PhysX capsule or cylinder lies along its local x axis; FCL's lie along z. This turns z onto x.
@@ -56,7 +60,10 @@ class CollisionWorld:
         import mplib  # mplib segfaults with numpy 2; the package pins numpy<2
 
         self.arm = arm
-        self._planner = mplib.Planner(urdf=str(arm.urdf), srdf=str(arm.srdf), move_group=arm.tcp_link)
+        # The base link stands on the table: in the arm's own model it would collide with the table in every
+        # configuration. It is fixed, so it has no collision geometry here, and a plain collide() answers.
+        urdf = planning_urdf(arm.urdf)
+        self._planner = mplib.Planner(urdf=str(urdf), srdf=str(arm.srdf), move_group=arm.tcp_link)
         self._world = self._planner.planning_world
         self._robot = self._planner.robot
         self._fcl = mplib.pymp.collision_detection.fcl
@@ -66,7 +73,6 @@ class CollisionWorld:
         self.obstacles: dict[str, list[Obstacle]] = {}
         self._attached = False
         self.margin = 0.0
-        self._fixed_links = frozenset({self._planner.user_link_names[0]})
 
     # ------------------------------------------------------------------ scene
     def sync_scene(
@@ -176,8 +182,6 @@ class CollisionWorld:
         self._set(q)
         pairs = []
         for res in self._world.collide_full():
-            if res.link_name1 in self._fixed_links:
-                continue
             other = res.link_name2 if res.collision_type == "self" else res.link_name2 or res.object_name2
             pairs.append((res.link_name1, (other or "").split("#")[0] or res.object_name2))
         return pairs
@@ -187,17 +191,18 @@ class CollisionWorld:
         if not self.arm.within_limits(q):
             return False
         self._set(q)
-        # The base link is mounted on the table, so a plain collide() is always True: list the pairs at once and
-        # ignore the base link's (its touching the table is not a collision).
-        return all(res.link_name1 in self._fixed_links for res in self._world.collide_full())
+        return not self._world.collide()
 
     def segment_valid(self, q0: np.ndarray, q1: np.ndarray, resolution: float = 0.005) -> bool:
         """True when every configuration on the straight joint-space segment q0→q1 is valid.
 
-        ``resolution`` is the largest joint-space step (rad, max norm) between checked configurations.
+        ``resolution`` is the largest joint-space step (rad, max norm) between checked configurations. They are
+        checked ends first, then in bisection order (as OMPL's motion validator does), so that a segment through
+        an obstacle fails after a few checks; a valid one costs the same checks in any order.
         """
+        q0, q1 = np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64)
         n = max(1, int(np.ceil(np.max(np.abs(q1 - q0)) / resolution)))
-        return all(self.is_valid(q0 + (q1 - q0) * t) for t in np.linspace(0.0, 1.0, n + 1))
+        return all(self.is_valid(q0 + (q1 - q0) * (i / n)) for i in bisection_order(n))
 
     def path_valid(self, path: np.ndarray, resolution: float = 0.005) -> bool:
         """True when every segment of a waypoint path (N×dof) is valid."""
@@ -216,6 +221,53 @@ class CollisionWorld:
     def base_to_world(self, pose: np.ndarray | sapien.Pose) -> sapien.Pose:
         """A base-frame pose expressed in the world frame."""
         return self.base_pose * _pose(pose)
+
+
+def bisection_order(n: int) -> list[int]:
+    """The indices 0..n: both ends, then the midpoints of ever finer halvings (each index once)."""
+    if n < 1:
+        raise ValueError(f"a segment has n >= 1 steps, got {n}")
+    order, seen = [0, n], {0, n}
+    spans = [(0, n)]
+    while spans:
+        nxt = []
+        for a, b in spans:
+            if b - a < 2:
+                continue
+            m = (a + b) // 2
+            if m not in seen:
+                seen.add(m)
+                order.append(m)
+            nxt += [(a, m), (m, b)]
+        spans = nxt
+    return order
+
+
+def planning_urdf(urdf: Path) -> Path:
+    """A copy of ``urdf`` for collision checking: the root link (fixed to the world) without collision geometry, and
+    mesh paths rewritten relative to the copy (mplib resolves every mesh path against the URDF's folder). Written
+    once to the cache folder, named after the source's path and content."""
+    urdf = Path(urdf).resolve()
+    text = urdf.read_bytes()
+    folder = cache_dir("planning")
+    out = folder / f"{urdf.stem}_{hashlib.sha1(str(urdf).encode() + text).hexdigest()[:12]}.urdf"
+    if out.exists():
+        return out
+    root = ET.fromstring(text)
+    children = {j.find("child").attrib["link"] for j in root.iter("joint") if j.find("child") is not None}
+    roots = [link for link in root.iter("link") if link.attrib["name"] not in children]
+    if len(roots) != 1:
+        raise ValueError(f"{urdf} has {len(roots)} root links; one is expected")
+    for collision in roots[0].findall("collision"):
+        roots[0].remove(collision)
+    for mesh in root.iter("mesh"):
+        name = mesh.attrib["filename"]
+        if not name.startswith("package://"):
+            mesh.attrib["filename"] = os.path.relpath(urdf.parent / name, folder)
+    tmp = out.with_suffix(f".{os.getpid()}.tmp")
+    ET.ElementTree(root).write(tmp)
+    tmp.replace(out)  # atomic: processes that build planners at once never read a half-written file
+    return out
 
 
 def _pose(p: np.ndarray | sapien.Pose) -> sapien.Pose:

@@ -8,16 +8,15 @@ import it (:mod:`~maniskill_pnp.tasks.objects` imports :mod:`~maniskill_pnp.task
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
+
+from maniskill_pnp.cache import cache_dir
 
 
 def mesh_cache_dir() -> Path:
     """The folder of cached mesh files (``$MANISKILL_PNP_CACHE/meshes`` or ``~/.cache/maniskill_pnp/meshes``), created
     if missing."""
-    root = Path(os.environ.get("MANISKILL_PNP_CACHE", Path.home() / ".cache" / "maniskill_pnp")) / "meshes"
-    root.mkdir(parents=True, exist_ok=True)
-    return root
+    return cache_dir("meshes")
 
 
 __all__ = ["mesh_cache_dir"]
