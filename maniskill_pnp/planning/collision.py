@@ -227,18 +227,15 @@ def bisection_order(n: int) -> list[int]:
     """The indices 0..n: both ends, then the midpoints of ever finer halvings (each index once)."""
     if n < 1:
         raise ValueError(f"a segment has n >= 1 steps, got {n}")
-    order, seen = [0, n], {0, n}
-    spans = [(0, n)]
+    # The spans of a round split 0..n into intervals that share only their ends, so each midpoint is new.
+    order, spans = [0, n], [(0, n)]
     while spans:
         nxt = []
         for a, b in spans:
-            if b - a < 2:
-                continue
-            m = (a + b) // 2
-            if m not in seen:
-                seen.add(m)
+            if b - a >= 2:
+                m = (a + b) // 2
                 order.append(m)
-            nxt += [(a, m), (m, b)]
+                nxt += [(a, m), (m, b)]
         spans = nxt
     return order
 
