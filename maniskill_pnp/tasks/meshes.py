@@ -7,7 +7,7 @@ This module reads such files once per (path, modification time, scale) and gives
 * :func:`mesh_info`: the scaled mesh centred on its axis-aligned bounding box (what the object frame is, as for the
   procedural kinds), its extents, whether it is watertight and convex, and the narrowest width of its footprint;
 * :func:`convex_parts`: the convex collision parts (object frame) as ``.obj`` files in the cache folder
-  (``MANISKILL_PNP_CACHE`` or ``~/.cache/maniskill_pnp``, see :func:`~maniskill_pnp.tasks.asset_cache.mesh_cache_dir`),
+  (``MANISKILL_PNP_CACHE`` or ``~/.cache/maniskill_pnp``, see :func:`~maniskill_pnp.cache.cache_dir` ``("meshes")``),
   one file per part, computed once per (file content hash, scale, decomposition parameters):
 
   - a mesh that is already convex (its volume within :data:`CONVEX_TOLERANCE` of its hull's) is one hull;
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from maniskill_pnp.tasks.asset_cache import mesh_cache_dir
+from maniskill_pnp.cache import cache_dir
 
 #: File types read (trimesh reads them for the geometry, SAPIEN for the visual shape).
 MESH_SUFFIXES = (".obj", ".stl", ".glb", ".gltf", ".ply")
@@ -221,7 +221,7 @@ def convex_parts(file, scale=(1.0, 1.0, 1.0), collision=None) -> list[Path]:
     info = mesh_info(file, scale)
     coll = mesh_info(collision, scale) if collision is not None else None
     key = parts_key(info, scale, coll)
-    folder = mesh_cache_dir() / f"parts_{key}"
+    folder = cache_dir("meshes") / f"parts_{key}"
     manifest = folder / "parts.json"
     if manifest.exists():
         names = json.loads(manifest.read_text())["parts"]

@@ -20,7 +20,7 @@ mesh       none: ``file`` (OBJ, STL, GLB, PLY) and ``scale``      convex parts (
 Every object is centred on its axis-aligned bounding box, rests on its bottom face when upright, is at least
 2 cm high and at most 7 cm across in at least one horizontal direction (what the Panda's jaws, 8 cm open, take).
 Convex meshes are written once to a cache folder (``MANISKILL_PNP_CACHE`` or ``~/.cache/maniskill_pnp``, see
-:func:`~maniskill_pnp.tasks.asset_cache.mesh_cache_dir`) and loaded with the builder's convex-mesh API; non-convex
+:func:`~maniskill_pnp.cache.cache_dir` ``("meshes")``) and loaded with the builder's convex-mesh API; non-convex
 kinds are unions of convex parts in one actor.
 
 A ``mesh`` object is the file's mesh, scaled (one factor or three per-axis factors) and centred on its bounding box,
@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import sapien
 
-from maniskill_pnp.tasks.asset_cache import mesh_cache_dir
+from maniskill_pnp.cache import cache_dir
 
 #: The procedural kinds (random clutters draw among them).
 KINDS = ("cuboid", "cylinder", "sphere", "L", "T", "U", "arch", "wedge", "hull")
@@ -293,7 +293,7 @@ def mesh_file(spec: ObjectSpec) -> Path:
     if verts is None:
         raise ValueError(f"{spec.kind} objects have no mesh")
     key = hashlib.sha1(np.round(verts, 6).tobytes()).hexdigest()[:16]
-    path = mesh_cache_dir() / f"{spec.kind}_{key}.obj"
+    path = cache_dir("meshes") / f"{spec.kind}_{key}.obj"
     if not path.exists():
         hull = trimesh.convex.convex_hull(verts)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.obj")
