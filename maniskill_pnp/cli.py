@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import types
 import typing
 from pathlib import Path
@@ -37,8 +38,36 @@ def _export_clutter(args) -> None:
     print(f"agent: {path} ({path.stat().st_size / 2**20:.1f} MiB)")
 
 
+def _strip_options(argv: list[str], names: tuple[str, ...]) -> list[str]:
+    """``argv`` without the options ``names`` (each with its one value, as ``--name V`` or ``--name=V``)."""
+    out, skip = [], False
+    for token in argv:
+        if skip:
+            skip = False
+        elif token in names:
+            skip = True
+        elif not any(token.startswith(f"{n}=") for n in names):
+            out.append(token)
+    return out
+
+
+def _bench_against(args) -> None:
+    """``bench WHICH ... --against REF``: the same benchmark on revision REF and on this checkout, in turns."""
+    from maniskill_pnp.bench.against import AgainstConfig, run_against
+
+    tokens = _strip_options(args.raw_argv[args.raw_argv.index("bench") + 1 :], ("--against", "--rounds", "--out"))
+    tokens.remove(args.which)
+    try:
+        cfg = AgainstConfig(args.which, tuple(tokens), args.against, rounds=args.rounds, out=args.out / f"against_{args.which}")
+        run_against(cfg)
+    except ValueError as e:
+        raise SystemExit(f"bench {args.which} --against {args.against}: {e}") from e
+
+
 def _bench(args) -> None:
-    if args.which == "primitives":
+    if args.against is not None:
+        _bench_against(args)
+    elif args.which == "primitives":
         from maniskill_pnp.bench.primitives import PrimitivesBenchConfig, run
 
         run(PrimitivesBenchConfig(episodes=args.episodes, out=args.out / "primitives.json"))
@@ -389,6 +418,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="decision-breakdown, batched-decisions: clutter recipe preset (default: %(default)s)")
     bench.add_argument("--num-envs", type=int, nargs="+", default=[1, 16],
                        help="batched-decisions: env counts run on the GPU (default: 1 16)")
+    bench.add_argument("--against", metavar="REF", default=None,
+                       help="run the benchmark on git revision REF of this checkout and on the checkout itself, in turns "
+                       "(--rounds each), and print both sides' headline figures and their ratio")
+    bench.add_argument("--rounds", type=int, default=3, help="--against: turns of each side (default: %(default)s)")
     bench.add_argument("--iterations", type=int, default=50, help="conveyor: iterations per random test case (default: %(default)s)")
     from maniskill_pnp.agents.pixel.config import CHOICES as CLUTTER_CHOICES, ClutterConfig, presets
     from maniskill_pnp.bench.pixel_dqn import DecisionCostBenchConfig, PixelMemoryBenchConfig
@@ -475,7 +508,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = build_parser().parse_args(argv)
+    raw = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser().parse_args(raw)
+    args.raw_argv = raw
     args.func(args)
 
 

@@ -188,6 +188,8 @@ def jobs(tmp_path_factory):
     j.chain(("bench collection", [*MODULE, "bench", "collection", "--task", "conveyor", "--workers", "1", "2",
                                   "--frames", "4", "--out", "bench"]))
     j.chain(("bench decision-breakdown", [*MODULE, "bench", "decision-breakdown", "--actions", "2", "--out", "bench"]))
+    j.chain(("bench against", [*MODULE, "bench", "clutter-oracle", "--episodes", "1", "--against", "HEAD", "--rounds", "1",
+                               "--out", "bench_against"]))
     j.chain(("bad collector", [*SCRIPT, "train-conveyor", "--workers", "2", "--collector", "direct", "--out", "never"]))
     j.chain(("bench decision-cost", [*MODULE, "bench", "decision-cost", "--backbone", "small", "--rotations", "2",
                                      "--heightmap-size", "32", "--num-primitives", "1", "--warmup", "1", "--repeats", "1",
@@ -288,6 +290,20 @@ def test_bench_clutter_oracle(jobs):
     assert len(results["scenes"]) == 1 and results["scenes"][0]["actions"] >= 1
     for key in ("success_rate", "grasp_success", "completion", "action_efficiency"):
         assert 0.0 <= results[key] <= 1.0, key
+
+
+def test_bench_against_a_revision(jobs):
+    """The same benchmark on the checkout's HEAD (a worktree) and on the checkout, in turns: both figures and the
+    ratio; the scripted oracle on the same seed plays the same scene to the same outcome on both sides."""
+    ran = jobs["bench against"].ok()
+    results = _report(jobs.out / "bench_against" / "against_clutter-oracle" / "against.json", "clutter-oracle against HEAD",
+                      ("ref", "ref_commit", "turns", "median", "ratio"))
+    assert len(results["turns"]["ref"]) == len(results["turns"]["this"]) == 1
+    for key in ("grasp success", "completion", "success rate", "step s (median)"):
+        assert results["median"]["ref"][key] >= 0 and results["median"]["this"][key] >= 0, key
+    if not results["this_uncommitted_changes"]:  # the same code on both sides
+        assert results["ratio"]["grasp success"] == results["ratio"]["completion"] == 1.0
+    assert "this / ref" in ran.stdout and "grasp success" in ran.stdout
 
 
 def test_bench_scene_counts(jobs):
@@ -482,7 +498,7 @@ def _flags(*names: str) -> list[str]:
 
 BENCH_OPTIONS = ["--episodes", "--out", "--iterations", "--backbone", "--rotations", "--heightmap-size",
                  "--num-primitives", "--repeats", "--warmup", "--device", "--threads", "--max-rss-gb",
-                 "--steps", "--actions", "--task", "--workers", "--frames", "--preset", "primitives", "clutter-oracle",
+                 "--steps", "--actions", "--task", "--workers", "--frames", "--preset", "--against", "--rounds", "primitives", "clutter-oracle",
                  "conveyor", "pixel-memory", "decision-cost", "soak", "env-overhead", "collection", "decision-breakdown"]
 HELP_OPTIONS = {
     "demo": ["--out", "--seed"],
