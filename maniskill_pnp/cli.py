@@ -38,6 +38,23 @@ def _export_clutter(args) -> None:
     print(f"agent: {path} ({path.stat().st_size / 2**20:.1f} MiB)")
 
 
+def _check_scene(args) -> None:
+    from maniskill_pnp.tasks.grasp_feasibility import check_scene_file, format_report
+    from maniskill_pnp.tasks.scene_file import SceneFileError
+
+    total = locked = 0
+    for path in args.files:
+        try:
+            grasps = check_scene_file(path, yaw_step_deg=args.yaw_step, position_step=args.position_step / 1000)
+        except (FileNotFoundError, SceneFileError, ValueError) as e:
+            raise SystemExit(f"check-scene: {e}") from e
+        print(format_report(str(path), grasps))
+        total += len(grasps)
+        locked += sum(g.locked for g in grasps)
+    if len(args.files) > 1:
+        print(f"all {len(args.files)} scenes: {total} objects, {locked} locked")
+
+
 def _strip_options(argv: list[str], names: tuple[str, ...]) -> list[str]:
     """``argv`` without the options ``names`` (each with its one value, as ``--name V`` or ``--name=V``)."""
     out, skip = [], False
@@ -496,6 +513,15 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--half", action=argparse.BooleanOptionalAction, default=True,
                         help="store floating-point weights as float16 (default: %(default)s)")
     export.set_defaults(func=_export_clutter)
+
+    check = sub.add_parser("check-scene", help="which objects of scene files no top-down grasp can take (locked): "
+                           "per scene its objects, locked count and feasible grasps per object")
+    check.add_argument("files", type=Path, nargs="+", help="scene files (YAML or JSON)")
+    check.add_argument("--yaw-step", type=float, default=15.0, help="jaw orientations every this many degrees over 180 "
+                       "(default: %(default)s)")
+    check.add_argument("--position-step", type=float, default=3.0, help="grasp positions every this many mm over each "
+                       "object (default: %(default)s)")
+    check.set_defaults(func=_check_scene)
 
     plot = sub.add_parser("plot-clutter", help="training curves (grasp success, success rate) of clutter runs in one PNG, "
                           "with first / last window numbers")

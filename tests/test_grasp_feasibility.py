@@ -1,0 +1,55 @@
+"""The grasp-feasibility check (maniskill_pnp.tasks.grasp_feasibility) on real collision shapes and the Panda's real
+finger and hand geometry, and its ``check-scene`` command."""
+
+import pytest
+import sapien
+
+from maniskill_pnp.cli import main
+from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_SCENES_DIR
+from maniskill_pnp.tasks.grasp_feasibility import check_scene_file, grasp_feasibility
+from maniskill_pnp.tasks.objects import ObjectSpec
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+WS = WorkspaceSpec()
+CUBE = ObjectSpec("cuboid", (0.02, 0.02, 0.02))
+
+
+def _at(x: float, y: float) -> sapien.Pose:
+    cx, cy = WS.center
+    return sapien.Pose(p=[cx + x, cy + y, 0.02])
+
+
+def test_square_of_four_is_all_locked():
+    grasps = check_scene_file(COMPLICATED_SCENES_DIR / "square_of_four.yaml", WS)
+    assert len(grasps) == 4 and all(g.locked and g.example is None for g in grasps)
+
+
+def test_isolated_cube_and_two_cubes_apart_are_free():
+    (single,) = grasp_feasibility([(CUBE, _at(0, 0))], WS)
+    assert not single.locked and single.fraction > 0.05
+    pair = grasp_feasibility([(CUBE, _at(-0.05, 0)), (CUBE, _at(0.05, 0))], WS)
+    assert not any(g.locked for g in pair)
+
+
+def test_row_of_pressed_cubes_is_graspable_across_the_row_but_not_along_it():
+    # three 4 cm cubes 1 mm apart along x: jaws closing along y (across the row) fit every cube, none along x
+    row = [(CUBE, _at(dx, 0)) for dx in (-0.041, 0.0, 0.041)]
+    grasps = grasp_feasibility(row, WS, yaw_step_deg=90)  # jaw orientations 0 (along x) and 90 degrees
+    assert not any(g.locked for g in grasps)
+    along = grasp_feasibility(row, WS, yaw_step_deg=180)  # along x only: a finger would go into a 1 mm gap
+    assert all(g.locked for g in along)
+
+
+def test_bad_input_is_named():
+    with pytest.raises(ValueError, match="at least one object"):
+        grasp_feasibility([], WS)
+    with pytest.raises(ValueError, match="yaw_step_deg"):
+        grasp_feasibility([(CUBE, _at(0, 0))], WS, yaw_step_deg=0)
+    with pytest.raises(ValueError, match="layout entry 0"):
+        grasp_feasibility([(CUBE, [0, 0, 0.02])], WS)
+
+
+def test_check_scene_command(capsys):
+    main(["check-scene", str(COMPLICATED_SCENES_DIR / "square_of_four.yaml"), str(COMPLICATED_SCENES_DIR / "sandwich.yaml")])
+    out = capsys.readouterr().out
+    assert "square_of_four.yaml: 4 objects, 4 locked" in out and "all 2 scenes: 7 objects, 7 locked" in out
