@@ -53,3 +53,27 @@ def test_check_scene_command(capsys):
     main(["check-scene", str(COMPLICATED_SCENES_DIR / "square_of_four.yaml"), str(COMPLICATED_SCENES_DIR / "sandwich.yaml")])
     out = capsys.readouterr().out
     assert "square_of_four.yaml: 4 objects, 4 locked" in out and "all 2 scenes: 7 objects, 7 locked" in out
+
+
+def test_shipped_hard_scenes_load_and_are_at_least_half_locked():
+    from maniskill_pnp.agents.pixel.factories import scenario_layout_files, scenario_options
+    from maniskill_pnp.tasks.hard_scenes import HARD_SCENE_COUNT, hard_layout_files, hard_scene_files
+
+    files = hard_scene_files()
+    assert len(files) == HARD_SCENE_COUNT
+    for path in files[::6]:  # load_scene runs check_layout
+        grasps = check_scene_file(path, WS)
+        assert 2 * sum(g.locked for g in grasps) >= len(grasps), path
+    assert scenario_layout_files("hard") == hard_layout_files() and len(hard_layout_files()) == HARD_SCENE_COUNT + 8
+    assert scenario_options("hard", "grasp_slide")["layout_file"][0] == str(files[0])
+
+
+def test_generator_reproduces_a_shipped_scene():
+    from maniskill_pnp.tasks.hard_scenes import HARD_SEED, hard_layout, hard_scene_files
+    from maniskill_pnp.tasks.scene_file import load_scene
+
+    _, layout, locked = hard_layout(HARD_SEED + 2, WS)
+    shipped = load_scene(hard_scene_files()[2], WS)
+    assert [s for s, _ in layout] == [s for s, _ in shipped] and 2 * locked >= len(layout)
+    for (_, a), (_, b) in zip(layout, shipped):
+        assert abs(a.p - b.p).max() < 1e-5

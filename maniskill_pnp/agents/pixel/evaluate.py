@@ -13,7 +13,9 @@ the argmax unchanged, so one failing action can repeat until the failure limit e
 
 Scenarios (``scenarios``, one table row each, like the thesis' Table IX): ``"train"`` (the checkpoint's object
 count), an object count such as ``"10"``, a density preset of the task (``"min"``, ``"medium"``, ``"max"``) or
-``"complicated"`` (ClutterGraspSlide-v1's hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset);
+``"complicated"`` (ClutterGraspSlide-v1's hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset),
+``"hard"`` (the 24 generated tightly packed scenes and the 8 locking layouts, episode ``i`` on file ``i mod 32``: run
+at least 32 episodes to play them all);
 see :data:`~maniskill_pnp.agents.pixel.factories.SCENARIOS`. Scene files of the user's own arrangements
 (``layout_file``, :mod:`~maniskill_pnp.tasks.scene_file`) are one more scenario, after those: its row is named
 after the files' stems (joined by ``+``), and episode ``i`` is played on file ``i mod (number of files)`` (seed
@@ -66,7 +68,7 @@ import torch
 from tqdm import tqdm
 
 from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file
-from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_policy, make_env
+from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_policy, make_env, scenario_layout_files
 from maniskill_pnp.agents.pixel.fcn import rotation_angles
 from maniskill_pnp.agents.pixel.metrics import is_grasp_attempt
 from maniskill_pnp.agents.pixel.policy import GreedyPixelActor
@@ -464,7 +466,8 @@ def run(cfg: ClutterEvalConfig) -> dict:
     episodes, rows, first = [], [], None
     outcomes = []
     # (row name, make_env arguments, names of the layout files: episode i plays file i mod their number)
-    plans = [(scenario, dict(scenario=scenario), None) for scenario in cfg.scenarios]
+    plans = [(scenario, dict(scenario=scenario), None if files is None else [p.stem for p in files])
+             for scenario, files in ((s, scenario_layout_files(s)) for s in cfg.scenarios)]
     if cfg.layout_file:
         plans.append((cfg.layout_scenario, dict(scenario="train", layout_file=[str(p) for p in cfg.layout_file]),
                       [p.stem for p in cfg.layout_file]))

@@ -25,8 +25,10 @@ from maniskill_pnp.tasks.workspace import WorkspaceSpec
 
 #: Scenes an agent can be run on besides a positive object count: ``"train"`` (the config's object count), a
 #: density preset of the task (``"min"``, ``"medium"``, ``"max"``) or ``"complicated"`` (ClutterGraspSlide-v1's
-#: hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset).
-SCENARIOS = ("train", "min", "medium", "max", "complicated")
+#: hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset) or ``"hard"`` (the scene files of
+#: :func:`~maniskill_pnp.tasks.hard_scenes.hard_layout_files`: 24 generated tightly packed scenes, at least half of
+#: their objects locked, and the 8 locking layouts; episode i plays file i mod 32).
+SCENARIOS = ("train", "min", "medium", "max", "complicated", "hard")
 
 
 def is_scenario(name: str) -> bool:
@@ -42,7 +44,18 @@ def scenario_options(name: str, task: str) -> dict:
         return dict(num_objects=int(name))
     if name == "complicated" and task == "grasp_slide":
         return dict(layout="complicated")
+    if name == "hard":
+        return dict(layout_file=[str(p) for p in scenario_layout_files(name)])
     return dict(num_objects=name)
+
+
+def scenario_layout_files(name: str) -> list[Path] | None:
+    """The scene files a scenario plays, one per episode in turn (``"hard"``), else None (drawn scenes)."""
+    if name != "hard":
+        return None
+    from maniskill_pnp.tasks.hard_scenes import hard_layout_files
+
+    return hard_layout_files()
 
 
 def make_workspace(cfg: ClutterConfig) -> WorkspaceSpec:
