@@ -75,6 +75,27 @@ def test_one_cpu_env_follows_a_trajectory_through_the_lockstep_path(cube_env):
     ex.gripper(1.0, 15)
 
 
+def test_a_stop_test_ends_the_path_where_the_arm_is(cube_env):
+    """A Motion's ``stop`` runs after each control step of its path; once true the arm holds where it is."""
+    cube_env.reset(seed=0)
+    ex = LockstepExecutor(cube_env, panda_spec())
+    q0 = ex.qpos()[0]
+    path = _ramp(q0, joint=0, delta=0.4, steps=40)
+    calls = []
+
+    def stop() -> bool:
+        calls.append(ex.control_steps)
+        return len(calls) == 10
+
+    before = ex.control_steps
+    err = ex.run([Motion(path, stop=stop)])
+    assert len(calls) == 10 and ex.control_steps - before == 10  # no step after the stop, no settling
+    reached = ex.qpos()[0, 0] - q0[0]
+    assert 0.02 < reached < 0.2  # part of the way: 0.4 rad was planned
+    assert err[0] < 0.02  # the final target is where the arm stopped
+    np.testing.assert_allclose(ex.arm_targets()[0], ex.qpos()[0], atol=0.02)
+
+
 def test_sim_executor_is_the_one_env_view(cube_env):
     cube_env.reset(seed=0)
     ex = SimExecutor(cube_env, panda_spec())

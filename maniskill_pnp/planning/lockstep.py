@@ -98,6 +98,8 @@ class Motion:
         settle_tol: Joint tolerance (rad) of the settle phase; None: no joint settling.
         max_settle: Most extra steps spent settling.
         until: A test run after each settle step (e.g. "the released object is at rest"); None: none.
+        stop: A test run after each control step of the tracked path (e.g. a guarded move's contact test): when it is
+            true the path ends there, the arm held where it is (no settling); None: none.
     """
 
     targets: np.ndarray | None = None
@@ -106,6 +108,7 @@ class Motion:
     settle_tol: float | None = 0.01
     max_settle: int = 20
     until: Callable[[], bool] | None = None
+    stop: Callable[[], bool] | None = None
 
     def __post_init__(self):
         if self.min_steps < 0 or self.max_settle < 0:
@@ -220,6 +223,12 @@ class LockstepExecutor:
                 break
             self.step(padded.targets[:, t] if t < padded.steps else final)
             t += 1
+            for i, m in enumerate(motions):
+                if m is not None and m.stop is not None and not done[i] and t < busy[i] and m.stop():
+                    q = self.qpos()[i]  # the path ends here: hold where the arm is
+                    padded.targets[i, t:] = q
+                    final[i] = q
+                    busy[i], settle_left[i] = t, 0
         err = np.max(np.abs(self.qpos() - final), axis=1)
         err[[m is None for m in motions]] = 0.0
         return err

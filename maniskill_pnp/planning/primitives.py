@@ -127,7 +127,13 @@ class MotionPrimitives:
         on_control_step: Callback after every control step (video recording).
         lockstep: The executor of all envs, shared by the per-env primitives of a batched env (a new one by default).
         env_idx: The env (sub-scene) these primitives plan for, sense and move.
+        guard_force: Guarded descents: a grasp's descent and a slide's lowering stop, and the primitive fails, as soon
+            as the contacts push the fingers or the hand up by more than this (N), like a real arm's collision reflex
+            (see :attr:`GUARD_LINKS`); None (default): descents go to their depth whatever they strike.
     """
+
+    #: Links whose upward contact force a guarded descent watches.
+    GUARD_LINKS = ("panda_leftfinger", "panda_rightfinger", "panda_hand")
 
     #: The primitives :meth:`program` can build.
     PRIMITIVES = ("pick", "reach", "grasp", "place", "slide", "move_to", "go_home")
@@ -163,7 +169,10 @@ class MotionPrimitives:
         on_control_step=None,
         lockstep: LockstepExecutor | None = None,
         env_idx: int = 0,
+        guard_force: float | None = None,
     ):
+        if guard_force is not None and not guard_force > 0:
+            raise ValueError(f"guard_force must be a positive force (N) or None, got {guard_force!r}")
         self.env = env.unwrapped
         self.arm = arm or panda_spec()
         self.executor = SimExecutor(env, self.arm, on_control_step, lockstep=lockstep, env_idx=env_idx)
@@ -180,6 +189,7 @@ class MotionPrimitives:
         self._planning_time = 0.0
         self._defer = False
         self.held: str | None = None
+        self.guard_force = guard_force
 
     def reset(self) -> None:
         """Forget per-episode state (held object, last gripper command); call after every ``env.reset``.
@@ -275,7 +285,7 @@ class MotionPrimitives:
         self._sync(ignore={target} if target else movable)
         fk = self.kin.fk(self.executor.qpos())
         goal = min(_twins(pose), key=lambda p: quat_angle(p.q, fk.q))
-        yield from self._straight(goal, "descend", res)
+        yield from self._straight(goal, "descend", res, guarded=True)
         heights = self._object_heights(movable)
         yield self._gripper(-1.0, self.GRIPPER_STEPS)
         fingers = self.executor.finger_qpos()
@@ -382,7 +392,7 @@ class MotionPrimitives:
         movable = self._movable()
         self._sync(ignore=movable)  # the tip may come down on, and then push, any movable object
         q_tcp = self.kin.fk(self.executor.qpos()).q
-        yield from self._straight(sapien.Pose(p=start, q=q_tcp), "lower", res)
+        yield from self._straight(sapien.Pose(p=start, q=q_tcp), "lower", res, guarded=True)
         yield from self._straight(sapien.Pose(p=start + length * d, q=q_tcp), "push", res)
         yield from self._straight(sapien.Pose(p=start + length * d + [0.0, 0.0, self.PREGRASP_HEIGHT], q=q_tcp), "retract", res)
         if target:
@@ -453,17 +463,22 @@ class MotionPrimitives:
             raise _StageFailed(stage, plan.reason)
         yield from self._execute(plan.path, stage, res, ("cached plan" if plan.cached else f"{len(plan.path)} waypoints") + detail)
 
-    def _straight(self, goal: sapien.Pose, stage: str, res: PrimitiveResult) -> None:
+    def _straight(self, goal: sapien.Pose, stage: str, res: PrimitiveResult, guarded: bool = False) -> None:
         seg = self._timed(self.kin.straight_line, self.executor.qpos(), goal)
         if not seg.ok:
             raise _StageFailed(stage, seg.reason)
-        yield from self._execute(seg.path, stage, res, f"{len(seg.path)} waypoints")
+        guard = _Guard(self) if guarded and self.guard_force is not None else None
+        yield from self._execute(seg.path, stage, res, f"{len(seg.path)} waypoints", stop=guard)
+        if guard is not None and guard.tripped is not None:
+            above = float(self.kin.fk(self.executor.qpos()).p[2] - goal.p[2])
+            raise _StageFailed(stage, f"guarded move stopped on contact: {guard.tripped:.1f} N up on the gripper "
+                                      f"(limit {self.guard_force:g} N), {above * 1000:.0f} mm above its goal")
 
-    def _execute(self, path: np.ndarray, stage: str, res: PrimitiveResult, detail: str) -> None:
+    def _execute(self, path: np.ndarray, stage: str, res: PrimitiveResult, detail: str, stop=None) -> None:
         traj = self._timed(
             time_parameterize, path, self.executor.dt, self.arm.max_velocity, self.arm.max_acceleration, self.world.mplib_planner
         )
-        err = yield Motion(traj)
+        err = yield Motion(traj, stop=stop)
         res.stages.append((stage, True, f"{detail}, {len(traj)} control steps, final error {err:.3f} rad"))
 
     def _sync(self, ignore: Collection[str] = ()) -> None:
@@ -511,6 +526,24 @@ class MotionPrimitives:
             return torch.linalg.norm(actor.linear_velocity[self.env_idx]).item() < 0.01
 
         return Motion(self.executor.qpos()[None], settle_tol=None, until=at_rest, max_settle=max_steps - 1)
+
+
+class _Guard:
+    """The stop test of a guarded move: true once the contacts on :attr:`MotionPrimitives.GUARD_LINKS` push up by
+    more than ``guard_force`` (the largest upward component over those links, in N); remembers that force
+    (``tripped``, None while it has not tripped)."""
+
+    def __init__(self, prims: MotionPrimitives):
+        self.prims, self.tripped = prims, None
+
+    def __call__(self) -> bool:
+        p = self.prims
+        forces = p.env.agent.robot.get_net_contact_forces(p.GUARD_LINKS)
+        up = float(forces[p.env_idx if forces.shape[0] > 1 else 0, :, 2].max())
+        if up <= p.guard_force:
+            return False
+        self.tripped = up
+        return True
 
 
 def _twins(pose: sapien.Pose) -> list[sapien.Pose]:

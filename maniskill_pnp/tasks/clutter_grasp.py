@@ -166,6 +166,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         max_actions: int | None = None,
         include_camera_data: bool = False,
         planner_seed: int = 0,
+        guard_force: float | None = None,
         **kwargs,
     ):
         """Args beyond ManiSkill's: ``workspace`` (geometry, cameras, bin), ``num_objects``, ``object_kinds``,
@@ -176,7 +177,11 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         ``"ycb"`` for every YCB model of ManiSkill's assets that fits the gripper, or a list of YCB model ids and/or
         ObjectSpecs; not with ``layout``, ``layout_file`` or ``object_kinds``), ``max_consecutive_failures`` and
         ``max_actions`` (truncation; default 3 × the largest object count), ``include_camera_data`` (raw RGB-D and
-        camera parameters in the observation), and the motion planner's seed."""
+        camera parameters in the observation), the motion planner's seed, and ``guard_force`` (N: grasp descents and
+        slide lowerings stop, and fail, when contacts push the gripper up by more than this, see
+        :class:`~maniskill_pnp.planning.primitives.MotionPrimitives`; None: unguarded)."""
+        if guard_force is not None and not (isinstance(guard_force, (int, float)) and guard_force > 0):
+            raise ValueError(f"guard_force must be a positive force in N or None, got {guard_force!r}")
         self.workspace = workspace or WorkspaceSpec()
         if isinstance(num_objects, str):
             num_objects = density_range(num_objects)
@@ -222,6 +227,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.max_actions = int(max_actions) if max_actions is not None else 3 * num_objects_range[1]
         self.include_camera_data = include_camera_data
         self.planner_seed = planner_seed
+        self.guard_force = None if guard_force is None else float(guard_force)
         s = self.workspace.heightmap_size
         self.action_layout = PixelActionLayout(len(self.PRIMITIVES), self.workspace.num_rotations, s, s)
         self.home_qpos = camera_clear_home()
@@ -330,7 +336,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             lockstep = LockstepExecutor(self, arm, on_control_step=self._on_control_step)
             self.prims = [
                 MotionPrimitives(self, arm=arm, static_actors={"table-workspace", "ground", "bin"}, seed=self.planner_seed + e,
-                                 lockstep=lockstep, env_idx=e)
+                                 lockstep=lockstep, env_idx=e, guard_force=self.guard_force)
                 for e in range(self.num_envs)
             ]
         return self.prims

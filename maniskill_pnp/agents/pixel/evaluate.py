@@ -125,6 +125,10 @@ class ClutterEvalConfig:
     """Never repeat an action that failed (a failed grasp, a slide that changed nothing) until the next success:
     a failure that leaves the scene as it was leaves the greedy argmax where it was, so without this memory the
     policy can repeat one failing action until the failure limit ends the episode."""
+    guard_force: float | None = None
+    """Guarded grasps and slides (N): a grasp's descent or a slide's lowering stops, and the action fails, when contacts
+    push the gripper up by more than this, as a real arm's collision reflex would (e.g. 20); None: unguarded, as in
+    training."""
     out: Path = Path("runs/clutter_eval")
     """Folder for eval_summary.json, eval_table.md/.csv and q_heatmaps.png."""
     device: str = "auto"
@@ -157,6 +161,8 @@ class ClutterEvalConfig:
             raise ValueError(f"actions_per_object must be > 0 (or None for no cap), got {self.actions_per_object}")
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.guard_force is not None and not self.guard_force > 0:
+            raise ValueError(f"guard_force must be a positive force in N (or None: unguarded), got {self.guard_force}")
         if self.device != "auto":
             try:
                 torch.device(self.device)
@@ -480,7 +486,7 @@ def run(cfg: ClutterEvalConfig) -> dict:
 
         for scenario, env_args, layouts in plans:
             bar.set_description(f"eval {scenario}")
-            torchrl_env = make_env(env_cfg, **env_args)
+            torchrl_env = make_env(env_cfg, guard_force=cfg.guard_force, **env_args)
             env = torchrl_env.maniskill_env  # the gymnasium env underneath: its per-step info holds the outcome
             try:
                 scenario_episodes = []
