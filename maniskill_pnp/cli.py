@@ -99,7 +99,12 @@ def _bench(args) -> None:
     elif args.which == "clutter-oracle":
         from maniskill_pnp.bench.clutter_oracle import ClutterOracleBenchConfig, run as run_oracle
 
-        run_oracle(ClutterOracleBenchConfig(scenes=args.episodes, out=args.out / "clutter_oracle.json"))
+        try:
+            cfg = ClutterOracleBenchConfig(scenes=args.episodes, scenario=args.scenario, guard_force=args.guard_force,
+                                           out=args.out / "clutter_oracle.json")
+            run_oracle(cfg)
+        except ValueError as e:
+            raise SystemExit(f"bench clutter-oracle: {e}") from e
     elif args.which == "conveyor":
         from maniskill_pnp.bench.conveyor import ConveyorBenchConfig, run as run_conveyor
 
@@ -435,6 +440,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="decision-breakdown, batched-decisions: clutter recipe preset (default: %(default)s)")
     bench.add_argument("--num-envs", type=int, nargs="+", default=[1, 16],
                        help="batched-decisions: env counts run on the GPU (default: 1 16)")
+    bench.add_argument("--scenario", choices=["hard"], default=None,
+                       help="clutter-oracle: play the hard test set's scene files instead of random clutter")
+    bench.add_argument("--guard-force", type=float, default=None,
+                       help="clutter-oracle: guarded grasps, descents stop on an upward contact force above this (N)")
     bench.add_argument("--against", metavar="REF", default=None,
                        help="run the benchmark on git revision REF of this checkout and on the checkout itself, in turns "
                        "(--rounds each), and print both sides' headline figures and their ratio")

@@ -167,7 +167,8 @@ def jobs(tmp_path_factory):
             ("export-clutter", [*MODULE, "export-clutter", f"clutter/{CLUTTER_RUN}", "--out", "agent.pt"]),
             ("record-clutter", [*MODULE, "record-clutter", "agent.pt", "--max-steps", "1", "--frame-every", "6",
                                 "--out", "clutter_video"]))
-    j.chain(("bench clutter-oracle", [*MODULE, "bench", "clutter-oracle", "--episodes", "1", "--out", "bench"]),
+    j.chain(("bench clutter-oracle", [*MODULE, "bench", "clutter-oracle", "--episodes", "1", "--scenario", "hard",
+                                      "--guard-force", "20", "--out", "bench"]),
             ("bench scene-counts", [*MODULE, "bench", "scene-counts", "--scenes", "1", "--out", "bench"]))
     j.chain(("bench pixel-memory", [*MODULE, "bench", "pixel-memory", "--rotations", "2", "--heightmap-size", "32",
                                     "--num-primitives", "1", "--repeats", "1", "--threads", "1", "--out", "bench"]))
@@ -288,6 +289,7 @@ def test_bench_clutter_oracle(jobs):
                       ("success_rate", "grasp_success", "completion", "action_efficiency", "scenes",
                        "step_time_s_median"))
     assert len(results["scenes"]) == 1 and results["scenes"][0]["actions"] >= 1
+    assert results["scenes"][0]["layout"] == "hard_00"  # the hard set's first file (random clutter: bench against)
     for key in ("success_rate", "grasp_success", "completion", "action_efficiency"):
         assert 0.0 <= results[key] <= 1.0, key
 

@@ -18,6 +18,7 @@ import gymnasium as gym
 from tqdm import tqdm
 
 from maniskill_pnp.agents.pixel.evaluate import EpisodeTally, summarize
+from maniskill_pnp.agents.pixel.factories import scenario_layout_files
 from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.runtime import default_backends
 from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
@@ -29,23 +30,33 @@ class ClutterOracleBenchConfig:
 
     Attributes:
         scenes: Seeded scenes (seeds 0..scenes-1).
-        num_objects: Objects per scene.
+        num_objects: Objects per scene (random clutter).
+        scenario: None: random loosely packed clutter of ``num_objects``; ``"hard"``: the hard test set's scene files
+            (tightly packed, at least half the objects locked, and the locking layouts), scene i playing file
+            i mod their number.
+        guard_force: Guarded grasps (N, see ``ClutterGrasp-v1``'s ``guard_force``); None: unguarded.
         out: JSON report path.
     """
 
     scenes: int = 5
     num_objects: int = 10
+    scenario: str | None = None
+    guard_force: float | None = None
     out: Path = Path("runs/bench/clutter_oracle.json")
 
 
 def run(cfg: ClutterOracleBenchConfig) -> dict:
     if cfg.scenes < 1 or cfg.num_objects < 1:
         raise ValueError(f"scenes and num_objects must be >= 1, got {cfg.scenes} and {cfg.num_objects}")
-    env = gym.make("ClutterGrasp-v1", num_objects=cfg.num_objects, **default_backends())
+    if cfg.scenario not in (None, "hard"):
+        raise ValueError(f"scenario must be None (random clutter) or 'hard', got {cfg.scenario!r}")
+    files = scenario_layout_files("hard") if cfg.scenario == "hard" else None
+    scene_args = dict(num_objects=cfg.num_objects) if files is None else dict(layout_file=[str(p) for p in files])
+    env = gym.make("ClutterGrasp-v1", guard_force=cfg.guard_force, **scene_args, **default_backends())
     oracle = HeightmapGraspOracle(env.unwrapped.workspace)
     per_scene, times = [], {"render": [], "heightmap": [], "oracle": [], "motion": [], "planning": [], "step": []}
     for seed in tqdm(range(cfg.scenes), desc="scenes", unit="scene"):
-        obs, info = env.reset(seed=seed)
+        obs, info = env.reset(seed=seed, options=None if files is None else {"layout_index": seed % len(files)})
         objects = int(info["objects_remaining"])
         tally = EpisodeTally(env.unwrapped.primitive_names)
         done = False
@@ -60,7 +71,8 @@ def run(cfg: ClutterOracleBenchConfig) -> dict:
                 times[part].append(env.unwrapped.step_timings[part])
             tally.add(info)
             done = bool(terminated.item() or truncated.item())
-        per_scene.append(dict(seed=seed, objects=objects, actions=tally.actions, grasp_attempts=tally.grasp_attempts,
+        layout = None if files is None else files[seed % len(files)].stem
+        per_scene.append(dict(seed=seed, layout=layout, objects=objects, actions=tally.actions, grasp_attempts=tally.grasp_attempts,
                               grasps=tally.grasps, placed=tally.placed, cleared=bool(terminated.item()),
                               lost=int(info["lost_objects"]), max_failure_run=tally.max_failure_run, faults=tally.faults))
     env.close()
@@ -69,7 +81,9 @@ def run(cfg: ClutterOracleBenchConfig) -> dict:
                    step_time_s_mean={k: statistics.mean(v) for k, v in times.items()})
     path = write_report(cfg.out, "clutter_oracle", {k: str(v) for k, v in asdict(cfg).items()}, results)
     print_machine()
-    print(f"ClutterGrasp-v1, heightmap oracle, {cfg.scenes} scenes x {cfg.num_objects} objects (loosely packed)")
+    scenes = f"{cfg.num_objects} objects (loosely packed)" if files is None else "the hard set's files"
+    guard = "unguarded" if cfg.guard_force is None else f"guarded at {cfg.guard_force:g} N"
+    print(f"ClutterGrasp-v1, heightmap oracle, {cfg.scenes} scenes x {scenes}, {guard}")
     for key in ("success_rate", "grasp_success", "completion", "action_efficiency"):
         print(f"  {key:<18} {results[key]:.1%}")
     print("  one grasp step (median / mean, s):")
