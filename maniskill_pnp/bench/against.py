@@ -96,15 +96,15 @@ def checkout_root() -> Path:
         raise ValueError(f"--against compares git revisions, but {package} is not in a git checkout ({e})") from e
 
 
-def worktree(ref: str) -> Path:
-    """A worktree of revision ``ref`` of this checkout (made once per commit, in the package cache)."""
-    root = checkout_root()
+def worktree(root: Path, ref: str) -> tuple[Path, str]:
+    """A worktree of revision ``ref`` of checkout ``root`` (made once per commit, in the package cache), and the
+    revision's commit."""
     commit = _git(root, "rev-parse", "--verify", f"{ref}^{{commit}}")
     path = cache_dir("bench-against") / commit[:12]
     if not (path / "maniskill_pnp" / "__init__.py").exists():
         _git(root, "worktree", "prune")
         _git(root, "worktree", "add", "--force", "--detach", str(path), commit)
-    return path
+    return path, commit
 
 
 def headline(which: str, report: dict) -> dict[str, float]:
@@ -140,7 +140,8 @@ def _turn(cfg: AgainstConfig, side: str, source: Path | None, i: int) -> dict[st
 def run_against(cfg: AgainstConfig) -> dict:
     """Run ``cfg.rounds`` turns of each side in alternation; print and return each side's median figures and the
     ratios (this checkout / ``ref``)."""
-    base = worktree(cfg.ref)
+    root = checkout_root()
+    base, commit = worktree(root, cfg.ref)
     load = os.getloadavg()
     cfg = AgainstConfig(cfg.which, cfg.argv, cfg.ref, cfg.rounds, Path(cfg.out).resolve())
     turns = {"ref": [], "this": []}
@@ -150,13 +151,12 @@ def run_against(cfg: AgainstConfig) -> dict:
     labels = [k for k in turns["ref"][0] if all(k in t for side in turns.values() for t in side)]
     median = {side: {k: statistics.median(t[k] for t in ts) for k in labels} for side, ts in turns.items()}
     ratio = {k: median["this"][k] / median["ref"][k] if median["ref"][k] else float("nan") for k in labels}
-    commit = _git(checkout_root(), "rev-parse", "--short", f"{cfg.ref}^{{commit}}")
-    dirty = bool(_git(checkout_root(), "status", "--porcelain", "--untracked-files=no"))
+    dirty = bool(_git(root, "status", "--porcelain", "--untracked-files=no"))
     results = dict(ref=cfg.ref, ref_commit=commit, this_uncommitted_changes=dirty, turns=turns, median=median, ratio=ratio)
     write_report(cfg.out / "against.json", f"{cfg.which} against {cfg.ref}", dict(argv=list(cfg.argv), rounds=cfg.rounds), results)
     print_machine(load)
     this = "this checkout" + (" (with uncommitted changes)" if dirty else "")
-    print(f"bench {cfg.which} {' '.join(cfg.argv)}: {cfg.ref} ({commit}) against {this}, median of {cfg.rounds} turns each")
+    print(f"bench {cfg.which} {' '.join(cfg.argv)}: {cfg.ref} ({commit[:12]}) against {this}, median of {cfg.rounds} turns each")
     width = max(len(k) for k in labels)
     print(f"{'figure':<{width}} {cfg.ref:>14} {'this':>14} {'this / ref':>11}")
     for k in labels:

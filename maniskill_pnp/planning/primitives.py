@@ -171,8 +171,6 @@ class MotionPrimitives:
         env_idx: int = 0,
         guard_force: float | None = None,
     ):
-        if guard_force is not None and not guard_force > 0:
-            raise ValueError(f"guard_force must be a positive force (N) or None, got {guard_force!r}")
         self.env = env.unwrapped
         self.arm = arm or panda_spec()
         self.executor = SimExecutor(env, self.arm, on_control_step, lockstep=lockstep, env_idx=env_idx)
@@ -189,7 +187,7 @@ class MotionPrimitives:
         self._planning_time = 0.0
         self._defer = False
         self.held: str | None = None
-        self.guard_force = guard_force
+        self.guard_force = check_guard_force(guard_force)
 
     def reset(self) -> None:
         """Forget per-episode state (held object, last gripper command); call after every ``env.reset``.
@@ -526,6 +524,15 @@ class MotionPrimitives:
             return torch.linalg.norm(actor.linear_velocity[self.env_idx]).item() < 0.01
 
         return Motion(self.executor.qpos()[None], settle_tol=None, until=at_rest, max_settle=max_steps - 1)
+
+
+def check_guard_force(guard_force) -> float | None:
+    """``guard_force`` as a float (N), or None (unguarded); a ValueError names anything else."""
+    if guard_force is None:
+        return None
+    if isinstance(guard_force, bool) or not isinstance(guard_force, (int, float, np.number)) or not guard_force > 0:
+        raise ValueError(f"guard_force must be a positive force in N, or None (unguarded), got {guard_force!r}")
+    return float(guard_force)
 
 
 class _Guard:

@@ -47,7 +47,7 @@ from mani_skill.utils import sapien_utils
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 
 from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion, Program
-from maniskill_pnp.planning.primitives import MotionPrimitives, grasp_pose
+from maniskill_pnp.planning.primitives import MotionPrimitives, check_guard_force, grasp_pose
 from maniskill_pnp.planning.robot import panda_spec
 from maniskill_pnp.tasks.bin import build_bin
 from maniskill_pnp.tasks.clutter import density_range, validate_layout
@@ -180,8 +180,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         camera parameters in the observation), the motion planner's seed, and ``guard_force`` (N: grasp descents and
         slide lowerings stop, and fail, when contacts push the gripper up by more than this, see
         :class:`~maniskill_pnp.planning.primitives.MotionPrimitives`; None: unguarded)."""
-        if guard_force is not None and not (isinstance(guard_force, (int, float)) and guard_force > 0):
-            raise ValueError(f"guard_force must be a positive force in N or None, got {guard_force!r}")
+        guard_force = check_guard_force(guard_force)  # here: the primitives are only built at the first step
         self.workspace = workspace or WorkspaceSpec()
         if isinstance(num_objects, str):
             num_objects = density_range(num_objects)
@@ -227,7 +226,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.max_actions = int(max_actions) if max_actions is not None else 3 * num_objects_range[1]
         self.include_camera_data = include_camera_data
         self.planner_seed = planner_seed
-        self.guard_force = None if guard_force is None else float(guard_force)
+        self.guard_force = guard_force
         s = self.workspace.heightmap_size
         self.action_layout = PixelActionLayout(len(self.PRIMITIVES), self.workspace.num_rotations, s, s)
         self.home_qpos = camera_clear_home()
