@@ -159,6 +159,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         loosely_packed: bool = True,
         min_gap: float = 0.01,
         packed_fraction: float = 0.0,
+        hard_fraction: float = 0.0,
         layout=None,
         layout_file=None,
         objects=None,
@@ -171,7 +172,10 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     ):
         """Args beyond ManiSkill's: ``workspace`` (geometry, cameras, bin), ``num_objects``, ``object_kinds``,
         ``loosely_packed`` and ``min_gap`` (clutter), ``packed_fraction`` (share of random clutters packed into tight
-        clusters instead, see :func:`~maniskill_pnp.tasks.clutter.sample_packed`), ``layout`` (explicit list of (ObjectSpec, pose); overrides the
+        clusters instead, see :func:`~maniskill_pnp.tasks.clutter.sample_packed`), ``hard_fraction`` (share of random
+        clutters replaced by one of the hard *training* arrangements of
+        :func:`~maniskill_pnp.tasks.hard_scenes.hard_train_files`, at a random yaw; never the test set's),
+        ``layout`` (explicit list of (ObjectSpec, pose); overrides the
         random clutter), ``layout_file`` (a scene file, or a list of them: one layout each, episodes draw among them;
         not with ``layout``), ``objects`` (what random clutters are made of instead of procedural ``object_kinds``:
         ``"ycb"`` for every YCB model of ManiSkill's assets that fits the gripper, or a list of YCB model ids and/or
@@ -204,6 +208,10 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             raise ValueError(f"packed_fraction must be in [0, 1], got {packed_fraction!r}")
         if packed_fraction and (layout is not None or layout_file is not None):
             raise ValueError("packed_fraction packs random clutters: not with layout= or layout_file=")
+        if not 0.0 <= hard_fraction <= 1.0:
+            raise ValueError(f"hard_fraction must be in [0, 1], got {hard_fraction!r}")
+        if hard_fraction and (layout is not None or layout_file is not None):
+            raise ValueError("hard_fraction replaces random clutters: not with layout= or layout_file=")
         if not (isinstance(max_consecutive_failures, int) and max_consecutive_failures >= 1):
             raise ValueError(f"max_consecutive_failures must be a positive int, got {max_consecutive_failures!r}")
         kwargs.setdefault("obs_mode", "rgb+depth")
@@ -221,7 +229,9 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         #: The objects: the pool of actors and each env's episode objects.
         self.clutter = ClutterPool(self.workspace, n, layouts, num_objects_range, kinds, bool(loosely_packed), float(min_gap),
                                    packed_fraction=float(packed_fraction), size=self.POOL_SIZE, library_seed=self.LIBRARY_SEED, settle=self.SETTLE,
-                                   max_speed=self.MAX_OBJECT_SPEED, library=library)
+                                   max_speed=self.MAX_OBJECT_SPEED, library=library,
+                                   arrangements=self._hard_training_layouts() if hard_fraction else None,
+                                   arrangement_fraction=float(hard_fraction))
         self.max_consecutive_failures = max_consecutive_failures
         self.max_actions = int(max_actions) if max_actions is not None else 3 * num_objects_range[1]
         self.include_camera_data = include_camera_data
@@ -440,6 +450,12 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         ClutterGrasp-v1 takes one explicit layout (a list of ``(ObjectSpec, pose)``); subclasses may offer more.
         """
         return None if layout is None else [validate_layout(layout, self.workspace)]
+
+    def _hard_training_layouts(self) -> list[list[tuple[ObjectSpec, sapien.Pose]]]:
+        """The hard training arrangements (``hard_fraction``), in this task's workspace."""
+        from maniskill_pnp.tasks.hard_scenes import hard_train_files
+
+        return [load_scene(f, self.workspace) for f in hard_train_files()]
 
     def _load_layout_files(self, layout_file, layout) -> list[list[tuple[ObjectSpec, sapien.Pose]]]:
         """The layouts of the scene file(s) ``layout_file`` (one path or a list of them), validated.

@@ -15,6 +15,13 @@ scales with the heightmap's pixel count, so the same share of the heightmap must
 workspace, the same area of table: about 24.5 pixels of a 64×64 heightmap); see :func:`heightmap_changed`.
 A slide that knocks an object out of the workspace is a failure whatever it changed (reward 0; ``info["knocked_out"]``
 counts the objects, ``info["reason"]`` says so): otherwise clearing the table by pushing would pay.
+
+Reward schemes (:data:`REWARD_SCHEMES`): ``"default"`` pays a slide for any change, as VPG does;
+``"no_slide_reward"`` never; ``"unlock"`` pays it by its effect: only when it changed the scene *and* made an
+object graspable that was not (``info["slide_unlocked"]``: objects near the ones it moved that were *locked*
+before it and are not after, by :func:`~maniskill_pnp.tasks.grasp_feasibility.grasp_feasibility` on the objects'
+collision shapes at their poses, on the grid of :data:`UNLOCK_CHECK`). A slide that merely shuffles objects that a
+grasp could take anyway, or pushes a locked block as a whole, then earns nothing.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import numpy as np
 from maniskill_pnp.tasks.clutter import validate_layout
 from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv
 from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
+from maniskill_pnp.tasks.grasp_feasibility import grasp_feasibility
 from maniskill_pnp.tasks.primitive_env import Judgement
 from maniskill_pnp.tasks.registration import register_task
 
@@ -31,7 +39,15 @@ from maniskill_pnp.tasks.registration import register_task
 REWARD_SCHEMES = {
     "default": dict(place=1.0, grasp=0.8, slide=0.5),
     "no_slide_reward": dict(place=1.0, grasp=0.8, slide=0.0),
+    "unlock": dict(place=1.0, grasp=0.8, slide=0.5),
 }
+#: The grasp-feasibility grid of the ``"unlock"`` scheme: the agent's 8 jaw lines, a coarser grid than
+#: ``check-scene``'s (a check of the objects around a slide takes about 0.1-0.3 s on one core).
+UNLOCK_CHECK = dict(yaw_step_deg=22.5, position_step=0.004, resolution=0.001, first_only=True)
+#: Objects moved by more than this (m) count as moved by a slide; objects within UNLOCK_REACH (m, centre to
+#: centre) of a moved one are checked before and after it.
+MOVED = 0.005
+UNLOCK_REACH = 0.15
 
 #: VPG's scene-change test: more than CHANGE_PIXELS pixels of a CHANGE_REFERENCE_SIZE² heightmap changed by a
 #: height in (CHANGE_MIN_DELTA, CHANGE_MAX_DELTA) metres.
@@ -85,7 +101,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
     - the workspace is clear (episode terminates); it is truncated after ``max_consecutive_failures`` failures
       in a row (a grasp that held nothing or a slide that changed nothing) or ``max_actions`` actions.
       ``info`` is ClutterGrasp-v1's plus ``primitive`` (name), ``primitive_index``, ``slide_changed``,
-      ``changed_pixels`` and ``knocked_out`` (objects the slide pushed out of the workspace).
+      ``changed_pixels``, ``knocked_out`` (objects the slide pushed out of the workspace) and ``slide_unlocked``
+      (objects the slide made graspable; counted by the ``"unlock"`` reward scheme only, 0 otherwise).
     """
 
     PRIMITIVES = ("grasp", "left_slide", "right_slide")
@@ -144,9 +161,6 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         return {"grasp": self._grasp_program, "left_slide": self._slide_program("left"),
                 "right_slide": self._slide_program("right")}
 
-    def _initial_last(self):
-        return dict(super()._initial_last(), changed_pixels=0)
-
     def _slide_program(self, side: str):
         """The program of a slide to ``side``: ``program(env, rot, row, col)``."""
 
@@ -166,6 +180,40 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
 
         return program
 
+    def _initial_last(self):
+        return dict(super()._initial_last(), changed_pixels=0, slide_unlocked=0)
+
+    def _snapshot(self, env):
+        snap = super()._snapshot(env)
+        if self.reward_scheme == "unlock":
+            snap["objects"] = self.clutter.workspace_objects(env)
+        return snap
+
+    def _unlocked(self, env, before) -> int:
+        """Objects near those the slide moved that were locked before it and are graspable after it."""
+        after = self.clutter.workspace_objects(env)
+        moved = [i for i, (_, pose) in before.items()
+                 if i not in after or np.linalg.norm(after[i][1].p - pose.p) > MOVED]
+        if not moved:
+            return 0
+        centres = np.array([before[i][1].p[:2] for i in moved])
+
+        def near(objects):
+            return [i for i, (_, pose) in objects.items() if np.min(np.linalg.norm(centres - pose.p[:2], axis=1)) <= UNLOCK_REACH]
+
+        def locked(objects, indices):
+            keys = near(objects)
+            checked = [keys.index(i) for i in indices if i in keys]
+            if not checked:
+                return {}
+            grasps = grasp_feasibility([objects[i] for i in keys], self.workspace, objects=checked, **UNLOCK_CHECK)
+            return {keys[g.index]: g.locked for g in grasps}
+
+        candidates = [i for i in near(before) if i in after]
+        was = locked(before, candidates)
+        now = locked(after, [i for i in candidates if was.get(i)])
+        return sum(1 for i, is_locked in now.items() if not is_locked)
+
     def _judge(self, env, decision, result, before):
         if decision.primitive == "grasp":
             return super()._judge(env, decision, result, before)
@@ -177,4 +225,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         if knocked_out > 0:  # pushing objects off the workspace is no progress: no reward, and it counts as a failure
             outcome["reason"] = f"the slide knocked {knocked_out} object(s) out of the workspace"
             return Judgement(0.0, False, outcome)
-        return Judgement(self.rewards["slide"] if changed else 0.0, changed, outcome)
+        pays = changed
+        if self.reward_scheme == "unlock" and changed:
+            outcome["slide_unlocked"] = self._unlocked(env, before["objects"])
+            pays = outcome["slide_unlocked"] > 0
+        return Judgement(self.rewards["slide"] if pays else 0.0, changed, outcome)

@@ -57,6 +57,11 @@ class ClutterPool:
         library: Objects random clutters are drawn from instead of random procedural ones of ``kinds`` (e.g. mesh
             files or YCB models): the pool holds each of them once, in a seeded order, and repeats them up to
             ``num_objects[1]`` when there are fewer (``size`` does not apply).
+        arrangements: Fixed arrangements (lists of ``(ObjectSpec, pose)``, e.g. the hard training scenes) that
+            ``arrangement_fraction`` of the random clutters are replaced by (a seeded draw per episode): one of them,
+            turned by a random yaw about its centre and put within 2 cm of the workspace centre. The pool holds
+            their objects beside the random library.
+        arrangement_fraction: That share (0: never).
     """
 
     workspace: WorkspaceSpec
@@ -72,6 +77,8 @@ class ClutterPool:
     settle: SettleSpec = field(default_factory=SettleSpec)
     max_speed: float = 5.0
     library: tuple[ObjectSpec, ...] | None = None
+    arrangements: list | None = None
+    arrangement_fraction: float = 0.0
 
     def __post_init__(self):
         if self.layouts is not None:
@@ -85,6 +92,15 @@ class ClutterPool:
         else:
             rng = np.random.default_rng(self.library_seed)
             self.specs = random_specs(rng, max(self.size, self.num_objects[1]), self.kinds)
+        #: Pool indices 0..random_count-1 are what random clutters draw from; the arrangements' objects follow.
+        self.random_count = len(self.specs)
+        self.arrangement_slots: list[list[int]] = []
+        if self.arrangements:
+            if self.layouts is not None:
+                raise ValueError("arrangements replace random clutters: not with explicit layouts")
+            specs, slots = shared_pool(self.arrangements)
+            self.arrangement_slots = [[self.random_count + i for i in index] for index in slots]
+            self.specs = self.specs + specs
         self.names = [f"obj_{i}_{spec.kind}" for i, spec in enumerate(self.specs)]
         self.actors: list = []
         n = self.num_envs
@@ -95,6 +111,8 @@ class ClutterPool:
         self.layout_index = np.full(n, -1)
         #: Per env: whether its random clutter was packed into tight clusters (``packed_fraction``).
         self.packed = np.zeros(n, dtype=bool)
+        #: Per env: the arrangement its episode plays instead of a random clutter (-1: none).
+        self.arrangement_index = np.full(n, -1)
         #: Per env: the pool indices of the objects taken out of its bin (:meth:`empty_bin`) this episode.
         self.emptied: list[set[int]] = [set() for _ in range(n)]
 
@@ -119,10 +137,15 @@ class ClutterPool:
             if self.layouts is not None:
                 j = self.layout_index[e] = layout_choice(rng)
                 chosen, placed = list(self.layout_slots[j]), [pose for _, pose in self.layouts[j]]
-            else:
+            elif self.arrangement_fraction > 0 and rng.random() < self.arrangement_fraction:
                 self.layout_index[e] = -1
+                j = self.arrangement_index[e] = int(rng.integers(len(self.arrangements)))
+                chosen, placed = list(self.arrangement_slots[j]), place_arrangement(rng, self.arrangements[j], self.workspace)
+                self.packed[e] = True  # upright, tightly packed: what rolls off is dropped upright again
+            else:
+                self.layout_index[e] = self.arrangement_index[e] = -1
                 lo, hi = self.num_objects
-                chosen = sorted(rng.choice(len(self.actors), size=int(rng.integers(lo, hi + 1)), replace=False).tolist())
+                chosen = sorted(rng.choice(self.random_count, size=int(rng.integers(lo, hi + 1)), replace=False).tolist())
                 specs = [self.specs[i] for i in chosen]
                 self.packed[e] = self.packed_fraction > 0 and rng.random() < self.packed_fraction
                 if self.packed[e]:
@@ -223,11 +246,15 @@ class ClutterPool:
         in the episode's order (what a scene file of the current scene holds)."""
         if not 0 <= env < self.num_envs:
             raise ValueError(f"env index must be in 0..{self.num_envs - 1}, got {env!r}")
-        out = []
+        return list(self.workspace_objects(env).values())
+
+    def workspace_objects(self, env: int) -> dict[int, tuple[ObjectSpec, sapien.Pose]]:
+        """Env ``env``'s objects still in the workspace by pool index: ``(ObjectSpec, world pose)`` each."""
+        out = {}
         for i, actor, status in zip(self.active_index[env], self.active_actors[env], self.status(env)):
             if status == "workspace":
                 p, q = (np.asarray(v[env].cpu().numpy(), dtype=np.float64) for v in (actor.pose.p, actor.pose.q))
-                out.append((self.specs[i], sapien.Pose(p=p, q=q / np.linalg.norm(q))))
+                out[i] = (self.specs[i], sapien.Pose(p=p, q=q / np.linalg.norm(q)))
         return out
 
     def in_play(self) -> list[int]:
@@ -248,6 +275,21 @@ class ClutterPool:
                     faults[e] = f"physics blow-up: {self.names[i]} at {p.tolist()} moving at {float(v.norm()):.3g} m/s"
                     break
         return faults
+
+
+def place_arrangement(rng: np.random.Generator, layout, workspace: WorkspaceSpec, offset: float = 0.02) -> list[sapien.Pose]:
+    """The poses of ``layout`` (``(ObjectSpec, pose)`` each) turned as one rigid piece by a random yaw about its
+    centre (the mean of its objects' xy), the centre moved to within ``offset`` (m) of the workspace centre."""
+    xy = np.array([pose.p[:2] for _, pose in layout], dtype=np.float64)
+    yaw = float(rng.uniform(-np.pi, np.pi))
+    rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    centre = np.asarray(workspace.center, dtype=np.float64) + rng.uniform(-offset, offset, size=2)
+    turn = sapien.Pose(q=[np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+    poses = []
+    for (_, pose), p in zip(layout, xy):
+        q = (turn * sapien.Pose(q=pose.q)).q
+        poses.append(sapien.Pose(p=[*(centre + rot @ (p - xy.mean(axis=0))), float(pose.p[2])], q=q))
+    return poses
 
 
 def shared_pool(layouts) -> tuple[list[ObjectSpec], list[list[int]]]:

@@ -270,13 +270,18 @@ def _maps(layout, table_z: float, step: float) -> _Maps:
 # ----------------------------------------------------------------------------- the check
 def grasp_feasibility(layout: Sequence[tuple[ObjectSpec, sapien.Pose]], workspace: WorkspaceSpec | None = None, *,
                       yaw_step_deg: float = YAW_STEP_DEG, position_step: float = POSITION_STEP,
-                      resolution: float = RESOLUTION, gripper: GripperModel | None = None) -> list[ObjectGrasps]:
+                      resolution: float = RESOLUTION, gripper: GripperModel | None = None,
+                      objects: Sequence[int] | None = None, first_only: bool = False) -> list[ObjectGrasps]:
     """Per object of ``layout`` (``(ObjectSpec, world pose)``, e.g. from
     :func:`~maniskill_pnp.tasks.scene_file.load_scene`): its grasp candidates and the feasible ones (see the module
     docstring). ``workspace`` gives the table height and the grasp depth rule (default :class:`WorkspaceSpec`).
+    ``objects``: only these indices of ``layout`` are checked (every object still counts as an obstacle);
+    ``first_only``: stop at the first jaw orientation with a feasible grasp (``feasible`` then counts that
+    orientation's only; ``locked`` is exact either way, and much cheaper to learn for objects that are not).
 
     Raises:
-        ValueError: an empty layout, an entry that is not ``(ObjectSpec, pose)``, or a non-positive step.
+        ValueError: an empty layout, an entry that is not ``(ObjectSpec, pose)``, an index of ``objects`` out of
+            range, or a non-positive step.
     """
     layout = list(layout)
     if not layout:
@@ -288,6 +293,9 @@ def grasp_feasibility(layout: Sequence[tuple[ObjectSpec, sapien.Pose]], workspac
     for name, v in (("yaw_step_deg", yaw_step_deg), ("position_step", position_step), ("resolution", resolution)):
         if not v > 0:
             raise ValueError(f"{name} must be > 0, got {v!r}")
+    checked = range(len(layout)) if objects is None else [int(k) for k in objects]
+    if any(not 0 <= k < len(layout) for k in checked):
+        raise ValueError(f"objects must be indices into the layout's {len(layout)} objects, got {list(objects)}")
     workspace = workspace or WorkspaceSpec()
     gripper = gripper or panda_gripper()
     maps = _maps(layout, workspace.table_z, resolution)
@@ -299,7 +307,8 @@ def grasp_feasibility(layout: Sequence[tuple[ObjectSpec, sapien.Pose]], workspac
     cy = np.linspace(-gripper.pad_inner, gripper.pad_inner, max(3, int(2 * gripper.pad_inner / FINGER_PITCH) + 1))[1:-1]
     closing = np.stack(np.meshgrid(cx, cy, indexing="ij"), axis=-1).reshape(-1, 2)
     out = []
-    for k, (spec, _) in enumerate(layout):
+    for k in checked:
+        spec = layout[k][0]
         visible = ~np.isnan(maps.hi[k]) & (maps.hi[k] >= maps.top - 1e-9)
         ii, jj = np.nonzero(visible & (np.arange(visible.shape[0])[:, None] % stride == 0)
                             & (np.arange(visible.shape[1])[None, :] % stride == 0))
@@ -337,6 +346,8 @@ def grasp_feasibility(layout: Sequence[tuple[ObjectSpec, sapien.Pose]], workspac
             if example is None and grip.any():
                 m = sel[int(np.argmax(grip))]
                 example = (float(pos[m, 0]), float(pos[m, 1]), float(tcp[m]), float(yaw))
+            if first_only and feasible:
+                break
         out.append(ObjectGrasps(k, spec.label, len(pos) * len(yaws), feasible, example))
     return out
 

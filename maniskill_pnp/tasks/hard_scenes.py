@@ -13,9 +13,12 @@ top-down grasp fits); otherwise the next draw of the same generator is tried.
 
 The shipped set: :data:`HARD_SCENE_COUNT` scenes of seeds ``HARD_SEED + i`` in ``scenes/hard/hard_<ii>.yaml``
 (workspace frame), written by ``python -m maniskill_pnp.tasks.hard_scenes`` (``--out`` another folder). Training
-never sees them: it draws random clutters from seeds, and these layouts are only played as explicit scene files
-(the ``hard`` scenario of ``eval-clutter``: these files and the 8 locking layouts of
-:mod:`~maniskill_pnp.tasks.complicated_layouts`, :func:`hard_layout_files`).
+never sees them: these layouts are only played as explicit scene files (the ``hard`` scenario of ``eval-clutter``:
+these files and the 8 locking layouts of :mod:`~maniskill_pnp.tasks.complicated_layouts`, :func:`hard_layout_files`).
+
+Training draws its hard arrangements from a disjoint set: :data:`HARD_TRAIN_COUNT` scenes of seeds
+``HARD_TRAIN_SEED + i`` in ``scenes/hard_train/train_<ii>.yaml`` (``python -m maniskill_pnp.tasks.hard_scenes
+--train``), each placed at a random yaw and offset per episode (the ``hard_fraction`` of the clutter tasks).
 """
 
 from __future__ import annotations
@@ -39,6 +42,10 @@ HARD_SEED = 29000
 HARD_SCENE_COUNT = 24
 #: Folder of the shipped scene files.
 HARD_SCENES_DIR = Path(__file__).resolve().parent / "scenes" / "hard"
+#: The training arrangements: seeds (disjoint from the test set's), count and folder.
+HARD_TRAIN_SEED = 39000
+HARD_TRAIN_COUNT = 24
+HARD_TRAIN_DIR = HARD_SCENES_DIR.with_name("hard_train")
 #: Draws tried per seed before giving up.
 MAX_DRAWS = 50
 
@@ -46,6 +53,11 @@ MAX_DRAWS = 50
 def hard_scene_files() -> list[Path]:
     """The shipped hard scene files, in seed order."""
     return [HARD_SCENES_DIR / f"hard_{i:02d}.yaml" for i in range(HARD_SCENE_COUNT)]
+
+
+def hard_train_files() -> list[Path]:
+    """The shipped training arrangements, in seed order (never the test set's seeds)."""
+    return [HARD_TRAIN_DIR / f"train_{i:02d}.yaml" for i in range(HARD_TRAIN_COUNT)]
 
 
 def hard_layout_files() -> list[Path]:
@@ -118,8 +130,9 @@ def hard_layout(seed: int, workspace: WorkspaceSpec | None = None) -> tuple[str,
     raise RuntimeError(f"no hard arrangement of seed {seed} in {MAX_DRAWS} draws")
 
 
-def write_hard_scenes(out: Path = HARD_SCENES_DIR, count: int = HARD_SCENE_COUNT, seed: int = HARD_SEED) -> list[Path]:
-    """Write ``count`` hard scenes of seeds ``seed + i`` as ``out/hard_<ii>.yaml`` (workspace frame); returns the
+def write_hard_scenes(out: Path = HARD_SCENES_DIR, count: int = HARD_SCENE_COUNT, seed: int = HARD_SEED,
+                      prefix: str = "hard") -> list[Path]:
+    """Write ``count`` hard scenes of seeds ``seed + i`` as ``out/<prefix>_<ii>.yaml`` (workspace frame); returns the
     paths."""
     from maniskill_pnp.tasks.scene_file import save_scene
 
@@ -127,8 +140,9 @@ def write_hard_scenes(out: Path = HARD_SCENES_DIR, count: int = HARD_SCENE_COUNT
     paths = []
     for i in range(count):
         family, layout, locked = hard_layout(seed + i, workspace)
-        path = save_scene(Path(out) / f"hard_{i:02d}.yaml", layout, workspace, name=f"hard_{i:02d}",
-                          description=f"hard set, seed {seed + i}: {family}, {len(layout)} objects, {locked} locked "
+        name = f"{prefix}_{i:02d}"
+        path = save_scene(Path(out) / f"{name}.yaml", layout, workspace, name=name,
+                          description=f"{prefix} set, seed {seed + i}: {family}, {len(layout)} objects, {locked} locked "
                                       "at the start (maniskill_pnp.tasks.hard_scenes)")
         print(f"{path}: {family}, {len(layout)} objects, {locked} locked")
         paths.append(path)
@@ -136,12 +150,21 @@ def write_hard_scenes(out: Path = HARD_SCENES_DIR, count: int = HARD_SCENE_COUNT
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="write the hard test set's scene files")
-    parser.add_argument("--out", type=Path, default=HARD_SCENES_DIR, help="folder (default: the package's scenes/hard)")
-    parser.add_argument("--count", type=int, default=HARD_SCENE_COUNT)
-    parser.add_argument("--seed", type=int, default=HARD_SEED)
+    parser = argparse.ArgumentParser(description="write the hard test set's scene files (or the training set's)")
+    parser.add_argument("--train", action="store_true",
+                        help=f"the training arrangements (seeds {HARD_TRAIN_SEED}.., scenes/hard_train) instead of the test set")
+    parser.add_argument("--out", type=Path, default=None, help="folder (default: the package's scenes/hard or scenes/hard_train)")
+    parser.add_argument("--count", type=int, default=None)
+    parser.add_argument("--seed", type=int, default=None)
     args = parser.parse_args(argv)
-    write_hard_scenes(args.out, args.count, args.seed)
+    default = (HARD_TRAIN_DIR, HARD_TRAIN_COUNT, HARD_TRAIN_SEED, "train") if args.train else \
+        (HARD_SCENES_DIR, HARD_SCENE_COUNT, HARD_SEED, "hard")
+    seed = default[2] if args.seed is None else args.seed
+    count = default[1] if args.count is None else args.count
+    if not args.train and seed < HARD_TRAIN_SEED + HARD_TRAIN_COUNT and seed + count > HARD_TRAIN_SEED or \
+            args.train and seed < HARD_SEED + HARD_SCENE_COUNT and seed + count > HARD_SEED:
+        parser.error(f"seeds {seed}..{seed + count - 1} overlap the other set's: test and training arrangements stay disjoint")
+    write_hard_scenes(args.out or default[0], count, seed, default[3])
 
 
 if __name__ == "__main__":

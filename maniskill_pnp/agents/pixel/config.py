@@ -58,7 +58,9 @@ class ClutterConfig(RunConfig):
     """"dqn": Huber loss to r + gamma max Q(s'); "bce": the binary-classification baseline (no bootstrapping, so it
     turns delay_value and double_dqn off)."""
     reward_scheme: str = "default"
-    """Reward scheme of ClutterGraspSlide-v1 ("default" or "no_slide_reward"); must be "default" for task grasp."""
+    """Reward scheme of ClutterGraspSlide-v1: "default" (a slide pays for any change of the scene),
+    "no_slide_reward" or "unlock" (a slide pays only when it makes a locked object graspable); must be "default" for
+    task grasp."""
     backbone: str = "small"
     """Feature trunk of the Q network: "densenet121" (thesis), "resnet101" or "small" (ResNet-18 to layer2), each run on
     R rotated copies of the heightmap; or "equivariant": a small rotation-equivariant (e2cnn, C_R) network giving all R
@@ -85,6 +87,14 @@ class ClutterConfig(RunConfig):
     """Share of training episodes whose objects are packed into tight clusters instead of dropped (so that slides have
     something to pull apart; see maniskill_pnp.tasks.clutter.sample_packed); evaluation scenes other than "train" are
     never packed."""
+    hard_fraction: float = 0.0
+    """Share of training episodes that play one of the hard training arrangements (tightly packed rows and blocks,
+    at least half of their objects locked; a set disjoint from the ``hard`` test scenes, see
+    maniskill_pnp.tasks.hard_scenes) at a random yaw, instead of a random clutter."""
+    guard_force: float | None = None
+    """Guarded grasps and slides (N): a descent stops, and the action fails, when contacts push the gripper up by
+    more than this, as a real Panda's collision reflex would (20 N: libfranka's example threshold); None: unguarded.
+    Training only: evaluations say it with ``eval-clutter --guard-force``."""
     steps: int = 300
     """Grasp attempts (env steps) to train for, counted over resumes."""
     episodes: int = 0
@@ -199,6 +209,11 @@ class ClutterConfig(RunConfig):
             PrimitiveExploreMask(self.explore_weights)  # raises on negative, non-finite or all-zero weights
         if not 0.0 <= self.packed_fraction <= 1.0:
             raise ValueError(f"packed_fraction must be in [0, 1], got {self.packed_fraction}")
+        if not 0.0 <= self.hard_fraction <= 1.0 or self.packed_fraction + self.hard_fraction > 1.0:
+            raise ValueError(f"hard_fraction must be in [0, 1 - packed_fraction], got {self.hard_fraction} "
+                             f"(packed_fraction {self.packed_fraction})")
+        if self.guard_force is not None and not (math.isfinite(self.guard_force) and self.guard_force > 0):
+            raise ValueError(f"guard_force must be a positive force in N (or None: unguarded), got {self.guard_force}")
         if not math.isfinite(self.slide_margin) or (self.slide_margin and self.task != "grasp_slide"):
             raise ValueError(f"slide_margin must be a finite number, and 0 unless task is 'grasp_slide'; got {self.slide_margin}")
         if self.episodes < 0 or not self.max_minutes >= 0:

@@ -75,8 +75,10 @@ def make_env(cfg: ClutterConfig, scenario: str = "train", **task_kwargs):
                    sim_backend="physx_cpu", render_backend="cpu")
     if cfg.task == "grasp_slide":
         options["reward_scheme"] = cfg.reward_scheme
-    if scenario == "train" and cfg.packed_fraction and not {"layout", "layout_file"} & task_kwargs.keys():
-        options["packed_fraction"] = cfg.packed_fraction  # the training clutters, not explicit layouts
+    if scenario == "train" and not {"layout", "layout_file"} & task_kwargs.keys():  # the training clutters only
+        options.update({k: getattr(cfg, k) for k in ("packed_fraction", "hard_fraction") if getattr(cfg, k)})
+    if scenario == "train" and cfg.guard_force is not None:
+        options["guard_force"] = cfg.guard_force
     options.update(scenario_options(scenario, cfg.task), **task_kwargs)
     return make_torchrl_env(cfg.env_id, **options)
 

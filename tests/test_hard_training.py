@@ -1,0 +1,117 @@
+"""Training for tightly packed clutter: the hard training arrangements (disjoint from the test set, mixed into the
+training clutters at a random yaw), the "unlock" reward scheme that pays a slide only when it frees a locked
+object, and the config fields that reach the training env (guard_force, hard_fraction)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import maniskill_pnp  # noqa: F401  (registers the tasks)
+from maniskill_pnp.agents.pixel.config import ClutterConfig
+from maniskill_pnp.agents.pixel.factories import make_env
+from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES
+from maniskill_pnp.tasks.hard_scenes import (
+    HARD_SCENE_COUNT, HARD_SEED, HARD_TRAIN_COUNT, HARD_TRAIN_SEED, hard_layout, hard_train_files, main,
+)
+from maniskill_pnp.tasks.objects import ObjectSpec
+from maniskill_pnp.tasks.scene_file import load_scene
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
+WS = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=4)
+
+
+def pairwise(xy: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(xy[:, None] - xy[None], axis=-1)
+
+
+def test_training_arrangements_are_shipped_reproducible_and_disjoint_from_the_test_seeds():
+    assert HARD_TRAIN_SEED >= HARD_SEED + HARD_SCENE_COUNT or HARD_TRAIN_SEED + HARD_TRAIN_COUNT <= HARD_SEED
+    files = hard_train_files()
+    assert len(files) == HARD_TRAIN_COUNT and all(f.is_file() for f in files)
+    _, layout, locked = hard_layout(HARD_TRAIN_SEED + 1, WS)
+    shipped = load_scene(files[1], WS)
+    assert [s for s, _ in layout] == [s for s, _ in shipped] and 2 * locked >= len(layout)
+    with pytest.raises(SystemExit):  # the writer refuses seeds of the other set
+        main(["--train", "--seed", str(HARD_SEED), "--count", "2"])
+
+
+def test_hard_fraction_plays_a_training_arrangement_turned_as_one_piece():
+    e = gym.make("ClutterGraspSlide-v1", workspace=WS, hard_fraction=1.0, **CPU)
+    try:
+        u = e.unwrapped
+        shipped = [load_scene(f, WS) for f in hard_train_files()]
+        seen = []
+        for seed in (0, 1, 2):
+            _, info = e.reset(seed=seed)
+            j = int(u.clutter.arrangement_index[0])
+            layout = u.clutter.workspace_layout(0)
+            assert j >= 0 and info["objects_remaining"].item() == len(shipped[j]) == len(layout)
+            xy = np.array([p.p[:2] for _, p in layout])
+            assert np.abs(pairwise(xy) - pairwise(np.array([p.p[:2] for _, p in shipped[j]]))).max() < 0.003
+            seen.append((j, xy))
+        _, _ = e.reset(seed=1)
+        assert u.clutter.arrangement_index[0] == seen[1][0]
+        assert np.abs(np.array([p.p[:2] for _, p in u.clutter.workspace_layout(0)]) - seen[1][1]).max() < 1e-4
+    finally:
+        e.close()
+    for bad, match in ((1.5, "hard_fraction must be"), (0.5, "not with layout")):
+        with pytest.raises(ValueError, match=match):
+            gym.make("ClutterGraspSlide-v1", workspace=WS, hard_fraction=bad,
+                     layout="complicated" if bad == 0.5 else None, **CPU)
+
+
+def slide(e, side: str, rotation: int, xyz):
+    u = e.unwrapped
+    row, col = u.workspace.world_to_pixel(np.asarray(xyz))
+    _, reward, _, _, info = e.step(u.action_layout.encode(u.PRIMITIVES.index(side), rotation, int(row), int(col)))
+    return reward.item(), info
+
+
+def positions(e) -> np.ndarray:
+    return np.stack([a.pose.p[0].cpu().numpy() for a in e.unwrapped.clutter.active_actors[0]])
+
+
+def test_unlock_scheme_pays_the_slide_that_frees_a_bar_and_not_one_that_only_moves_things():
+    """row_of_three (three 4×9 cm bars pressed together, all locked): pushing the end bar out of the row frees it
+    and pays. An isolated cube pushed aside changes the scene but frees nothing: 0, and still no failure."""
+    e = gym.make("ClutterGraspSlide-v1", workspace=WS, layout="complicated", reward_scheme="unlock", guard_force=20.0,
+                 complicated_index=COMPLICATED_LAYOUT_NAMES.index("row_of_three"), **CPU)
+    try:
+        e.reset(seed=0)
+        before = positions(e)
+        reward, info = slide(e, "left_slide", 0, before[2] + [0.014, -0.065, 0.0])  # rotation 0's left is +y
+        assert info["slide_changed"] and info["slide_unlocked"] >= 1 and reward == 0.5, info
+        assert positions(e)[2, 1] - before[2, 1] > 0.04
+    finally:
+        e.close()
+    cx, cy = WS.center
+    cube = (ObjectSpec("cuboid", (0.02, 0.02, 0.02)), (cx + 0.08, cy + 0.05, 0.02))
+    e = gym.make("ClutterGraspSlide-v1", workspace=WS, layout=[cube], reward_scheme="unlock", **CPU)
+    try:
+        e.reset(seed=0)
+        reward, info = slide(e, "right_slide", 1, np.asarray(cube[1]) - [0.04, 0.0, 0.0])  # right of rotation 1: +x
+        assert info["slide_changed"] and info["slide_unlocked"] == 0 and reward == 0.0, info
+        assert info["consecutive_failures"] == 0
+    finally:
+        e.close()
+
+
+def test_config_fields_reach_the_training_env_only():
+    cfg = ClutterConfig.from_preset("gs-cpu-equi-hard", heightmap_size=32, num_rotations=4)
+    assert (cfg.hard_fraction, cfg.guard_force, cfg.reward_scheme) == (0.5, 20.0, "unlock")
+    env = make_env(cfg)
+    try:
+        base = env.base_env
+        assert base.guard_force == 20.0 and base.clutter.arrangement_fraction == 0.5 and base.reward_scheme == "unlock"
+    finally:
+        env.close()
+    for bad, match in (
+        (dict(hard_fraction=0.8, packed_fraction=0.3), "hard_fraction"),
+        (dict(guard_force=-1.0), "guard_force"),
+        (dict(reward_scheme="pushy"), "reward scheme"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            ClutterConfig.from_preset("gs-cpu-equi-hard", **bad)
