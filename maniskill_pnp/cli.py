@@ -101,7 +101,7 @@ def _bench(args) -> None:
 
         try:
             cfg = ClutterOracleBenchConfig(scenes=args.episodes, scenario=args.scenario, guard_force=args.guard_force,
-                                           out=args.out / "clutter_oracle.json")
+                                           oracle=args.oracle, out=args.out / "clutter_oracle.json")
             run_oracle(cfg)
         except ValueError as e:
             raise SystemExit(f"bench clutter-oracle: {e}") from e
@@ -406,7 +406,7 @@ def build_parser() -> argparse.ArgumentParser:
         "which", choices=["primitives", "clutter-oracle", "conveyor", "pixel-memory", "decision-cost", "soak",
                           "env-overhead", "collection", "decision-breakdown", "batched-decisions", "training-throughput", "scene-counts"],
         help="primitives: pick-and-place success, planning and wall time; "
-        "clutter-oracle: ClutterGrasp-v1 cleared by the scripted heightmap oracle (10 objects, --episodes scenes); "
+        "clutter-oracle: clutter cleared by a scripted --oracle (10 objects, --episodes scenes); "
         "conveyor: train Q-learning and SARSA with the default config, then the random test cases; "
         "pixel-memory: peak memory and time of one training step of a pixel Q network, DenseNet memory_efficient "
         "on vs off, each in a fresh process; decision-cost: time of one greedy decision / time of its bare trunk "
@@ -444,6 +444,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="clutter-oracle: play the hard test set's scene files instead of random clutter")
     bench.add_argument("--guard-force", type=float, default=None,
                        help="clutter-oracle: guarded grasps, descents stop on an upward contact force above this (N)")
+    bench.add_argument("--oracle", choices=["heightmap", "grasp-only", "slide-then-grasp"], default="heightmap",
+                       help="clutter-oracle: the heightmap oracle (ClutterGrasp-v1), or the oracles that see the objects' "
+                       "shapes: grasps where the grasp check finds one, and slides that free a locked object where it "
+                       "finds none (ClutterGraspSlide-v1) (default: %(default)s)")
     bench.add_argument("--against", metavar="REF", default=None,
                        help="run the benchmark on git revision REF of this checkout and on the checkout itself, in turns "
                        "(--rounds each), and print both sides' headline figures and their ratio")

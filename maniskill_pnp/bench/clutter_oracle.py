@@ -1,7 +1,11 @@
-"""Benchmark of ClutterGrasp-v1 with the scripted heightmap oracle: grasp success and the cost of one grasp step.
+"""Benchmark of the clutter tasks with a scripted oracle: grasp success, completion and the cost of one step.
 
-Runs seeded loosely packed scenes to the end with :class:`~maniskill_pnp.tasks.clutter_oracle.HeightmapGraspOracle`
-(highest pixel of an isolated object, jaws across its shorter side) and prints the metrics of ``docs/metrics.md``
+Runs seeded scenes to the end with one of the oracles of :data:`ORACLES`: ``heightmap``
+(:class:`~maniskill_pnp.tasks.clutter_oracle.HeightmapGraspOracle`: highest pixel of an isolated object, jaws across
+its shorter side, on ClutterGrasp-v1), ``grasp-only`` and ``slide-then-grasp``
+(:class:`~maniskill_pnp.tasks.slide_oracle.FeasibleGraspOracle`, which see the objects' shapes and poses: grasps
+where the grasp check finds one, and, for the second, a slide that frees a locked object where none does, on
+ClutterGraspSlide-v1), and prints the metrics of ``docs/metrics.md``
 (``success_rate``, ``grasp_success``, ``completion``, ``action_efficiency``, counted as ``eval-clutter`` counts them)
 and the time of one grasp step broken
 down into render, heightmap, oracle and motion (planning included); writes JSON.
@@ -22,6 +26,10 @@ from maniskill_pnp.agents.pixel.factories import scenario_layout_files
 from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.runtime import default_backends
 from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
+from maniskill_pnp.tasks.slide_oracle import FeasibleGraspOracle
+
+#: The oracles: name -> the task it plays.
+ORACLES = {"heightmap": "ClutterGrasp-v1", "grasp-only": "ClutterGraspSlide-v1", "slide-then-grasp": "ClutterGraspSlide-v1"}
 
 
 @dataclass(frozen=True)
@@ -35,6 +43,7 @@ class ClutterOracleBenchConfig:
             (tightly packed, at least half the objects locked, and the locking layouts), scene i playing file
             i mod their number.
         guard_force: Guarded grasps (N, see ``ClutterGrasp-v1``'s ``guard_force``); None: unguarded.
+        oracle: One of :data:`ORACLES`.
         out: JSON report path.
     """
 
@@ -42,6 +51,7 @@ class ClutterOracleBenchConfig:
     num_objects: int = 10
     scenario: str | None = None
     guard_force: float | None = None
+    oracle: str = "heightmap"
     out: Path = Path("runs/bench/clutter_oracle.json")
 
 
@@ -50,10 +60,16 @@ def run(cfg: ClutterOracleBenchConfig) -> dict:
         raise ValueError(f"scenes and num_objects must be >= 1, got {cfg.scenes} and {cfg.num_objects}")
     if cfg.scenario not in (None, "hard"):
         raise ValueError(f"scenario must be None (random clutter) or 'hard', got {cfg.scenario!r}")
+    if cfg.oracle not in ORACLES:
+        raise ValueError(f"unknown oracle {cfg.oracle!r}; valid: {list(ORACLES)}")
     files = scenario_layout_files("hard") if cfg.scenario == "hard" else None
     scene_args = dict(num_objects=cfg.num_objects) if files is None else dict(layout_file=[str(p) for p in files])
-    env = gym.make("ClutterGrasp-v1", guard_force=cfg.guard_force, **scene_args, **default_backends())
-    oracle = HeightmapGraspOracle(env.unwrapped.workspace)
+    env = gym.make(ORACLES[cfg.oracle], guard_force=cfg.guard_force, **scene_args, **default_backends())
+    if cfg.oracle == "heightmap":
+        heightmap_oracle = HeightmapGraspOracle(env.unwrapped.workspace)
+        oracle = lambda obs: heightmap_oracle(obs["depth_heightmap"][0])  # noqa: E731
+    else:
+        oracle = FeasibleGraspOracle(env.unwrapped, slides=cfg.oracle == "slide-then-grasp")
     per_scene, times = [], {"render": [], "heightmap": [], "oracle": [], "motion": [], "planning": [], "step": []}
     for seed in tqdm(range(cfg.scenes), desc="scenes", unit="scene"):
         obs, info = env.reset(seed=seed, options=None if files is None else {"layout_index": seed % len(files)})
@@ -62,7 +78,7 @@ def run(cfg: ClutterOracleBenchConfig) -> dict:
         done = False
         while not done:
             t0 = time.perf_counter()
-            action = oracle(obs["depth_heightmap"][0])
+            action = oracle(obs)
             t_oracle = time.perf_counter() - t0
             obs, _, terminated, truncated, info = env.step(action)
             times["step"].append(time.perf_counter() - t0)
@@ -73,6 +89,7 @@ def run(cfg: ClutterOracleBenchConfig) -> dict:
             done = bool(terminated.item() or truncated.item())
         layout = None if files is None else files[seed % len(files)].stem
         per_scene.append(dict(seed=seed, layout=layout, objects=objects, actions=tally.actions, grasp_attempts=tally.grasp_attempts,
+                              slides=tally.actions - tally.grasp_attempts,
                               grasps=tally.grasps, placed=tally.placed, cleared=bool(terminated.item()),
                               lost=int(info["lost_objects"]), max_failure_run=tally.max_failure_run, faults=tally.faults))
     env.close()
@@ -83,10 +100,12 @@ def run(cfg: ClutterOracleBenchConfig) -> dict:
     print_machine()
     scenes = f"{cfg.num_objects} objects (loosely packed)" if files is None else "the hard set's files"
     guard = "unguarded" if cfg.guard_force is None else f"guarded at {cfg.guard_force:g} N"
-    print(f"ClutterGrasp-v1, heightmap oracle, {cfg.scenes} scenes x {scenes}, {guard}")
+    print(f"{ORACLES[cfg.oracle]}, {cfg.oracle} oracle, {cfg.scenes} scenes x {scenes}, {guard}")
     for key in ("success_rate", "grasp_success", "completion", "action_efficiency"):
         print(f"  {key:<18} {results[key]:.1%}")
-    print("  one grasp step (median / mean, s):")
+    print(f"  actions {sum(s['actions'] for s in per_scene)} ({sum(s['slides'] for s in per_scene)} slides) for "
+          f"{sum(s['objects'] for s in per_scene)} objects, {sum(s['placed'] for s in per_scene)} placed")
+    print("  one step (median / mean, s):")
     for k in times:
         print(f"    {k:<10} {results['step_time_s_median'][k]:.3f} / {results['step_time_s_mean'][k]:.3f}")
     print(f"report: {path}")

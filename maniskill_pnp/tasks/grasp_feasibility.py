@@ -343,8 +343,9 @@ def grasp_feasibility(layout: Sequence[tuple[ObjectSpec, sapien.Pose]], workspac
                 flat = (np.ptp(ymax, axis=1) <= tol) & (np.ptp(ymin, axis=1) <= tol)
             grip = np.all(np.isfinite(ymax), axis=1) & flat
             feasible += int(grip.sum())
-            if example is None and grip.any():
-                m = sel[int(np.argmax(grip))]
+            if example is None and grip.any():  # the feasible position nearest the middle of the object's top
+                held_pos = sel[grip]
+                m = held_pos[int(np.argmin(np.linalg.norm(pos[held_pos] - pos.mean(axis=0), axis=1)))]
                 example = (float(pos[m, 0]), float(pos[m, 1]), float(tcp[m]), float(yaw))
             if first_only and feasible:
                 break

@@ -1,0 +1,56 @@
+"""The oracles that see the objects' shapes (maniskill_pnp.tasks.slide_oracle): on a locked row the grasp-only
+oracle has no feasible grasp, the slide-then-grasp oracle slides the end bar free, the task's "unlock" judgement
+agrees, and the next choice is a feasible grasp that succeeds; guarded at 20 N throughout."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import pytest
+
+import maniskill_pnp  # noqa: F401  (registers the tasks)
+from maniskill_pnp.bench.clutter_oracle import ClutterOracleBenchConfig, run
+from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES
+from maniskill_pnp.tasks.slide_oracle import FeasibleGraspOracle
+from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
+WS = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=16)
+
+
+@pytest.fixture(scope="module")
+def row():
+    e = gym.make("ClutterGraspSlide-v1", workspace=WS, layout="complicated", reward_scheme="unlock", guard_force=20.0,
+                 complicated_index=COMPLICATED_LAYOUT_NAMES.index("row_of_three"), **CPU)
+    yield e
+    e.close()
+
+
+def test_grasp_only_oracle_falls_back_on_a_locked_row(row):
+    obs, _ = row.reset(seed=0)
+    oracle = FeasibleGraspOracle(row.unwrapped, slides=False)
+    oracle(obs)
+    assert oracle.last.kind == "fallback_grasp"
+
+
+def test_slide_then_grasp_oracle_frees_the_row_and_grasps(row):
+    obs, _ = row.reset(seed=0)
+    oracle = FeasibleGraspOracle(row.unwrapped, slides=True)
+    action = oracle(obs)
+    assert oracle.last.kind == "slide" and oracle.last.predicted_unlocked >= 1
+    obs, reward, _, _, info = row.step(action)
+    assert info["slide_changed"] and info["slide_unlocked"] >= 1 and reward.item() == 0.5, info
+    action = oracle(obs)
+    assert oracle.last.kind == "grasp"
+    obs, _, _, _, info = row.step(action)
+    assert info["grasp_success"], info
+
+
+def test_oracle_bench_names_bad_options():
+    with pytest.raises(ValueError, match="unknown oracle"):
+        run(ClutterOracleBenchConfig(oracle="psychic"))
+    grasp_only = gym.make("ClutterGrasp-v1", workspace=WS, num_objects=1, **CPU)
+    try:
+        with pytest.raises(ValueError, match="primitives"):
+            FeasibleGraspOracle(grasp_only.unwrapped, slides=True)
+    finally:
+        grasp_only.close()
