@@ -90,6 +90,8 @@ PRESET_VALUES = {
     "cpu-equi": dict(task="grasp", backbone="equivariant", num_rotations=16, heightmap_size=64, steps=300, batch_size=4),
     "gs-cpu-equi": dict(task="grasp_slide", backbone="equivariant", num_rotations=16, head_channels=32, heightmap_size=64,
                         steps=300),
+    "gs-cpu-equi-hard": dict(task="grasp_slide", backbone="equivariant", head_channels=32, hard_fraction=0.5,
+                             guard_force=20.0, reward_scheme="unlock", explore_weights=(2.0, 1.0, 1.0), updates_per_step=2),
 }
 
 
