@@ -285,10 +285,11 @@ def place_arrangement(rng: np.random.Generator, layout, workspace: WorkspaceSpec
     rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
     centre = np.asarray(workspace.center, dtype=np.float64) + rng.uniform(-offset, offset, size=2)
     turn = sapien.Pose(q=[np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+    mid = xy.mean(axis=0)
     poses = []
     for (_, pose), p in zip(layout, xy):
         q = (turn * sapien.Pose(q=pose.q)).q
-        poses.append(sapien.Pose(p=[*(centre + rot @ (p - xy.mean(axis=0))), float(pose.p[2])], q=q))
+        poses.append(sapien.Pose(p=[*(centre + rot @ (p - mid)), float(pose.p[2])], q=q))
     return poses
 
 

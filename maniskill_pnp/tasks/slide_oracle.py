@@ -108,6 +108,7 @@ class FeasibleGraspOracle:
         best, best_key = None, None
         for k, (spec, pose) in enumerate(layout):
             present = ~np.isnan(maps.hi[k])
+            others = np.any(~np.isnan(np.delete(maps.hi, k, axis=0)), axis=0)  # cells any other object covers
             cells = maps.origin + maps.step * np.argwhere(present)
             centre = cells.mean(axis=0)
             yaw_obj = math.atan2(*pose.to_transformation_matrix()[1::-1, 0])
@@ -124,7 +125,7 @@ class FeasibleGraspOracle:
                         shift = d * (ws.slide_length - contact)
                         moved = cells + shift
                         if not (x0 <= moved[:, 0].min() and moved[:, 0].max() <= x1 and y0 <= moved[:, 1].min()
-                                and moved[:, 1].max() <= y1) or self._path_blocked(maps, k, shift):
+                                and moved[:, 1].max() <= y1) or self._path_blocked(maps, present, others, shift):
                             continue
                         predicted = list(layout)
                         p = np.array(pose.p, dtype=np.float64)
@@ -162,10 +163,10 @@ class FeasibleGraspOracle:
                 contact = float(t)
         return contact
 
-    def _path_blocked(self, maps, k, shift) -> bool:
-        """Whether object ``k``'s footprint, moved along ``shift`` in steps, overlaps another object's."""
-        others = np.any(~np.isnan(np.delete(maps.hi, k, axis=0)), axis=0)
-        cells = np.argwhere(~np.isnan(maps.hi[k]))
+    def _path_blocked(self, maps, present, others, shift) -> bool:
+        """Whether an object's footprint (cells ``present``), moved along ``shift`` in steps, meets the cells
+        ``others`` of the other objects."""
+        cells = np.argwhere(present)
         n = max(1, int(np.linalg.norm(shift) / SWEEP_STEP))
         for s in range(1, n + 1):
             ij = np.rint(cells + shift * s / n / maps.step).astype(np.int64)
