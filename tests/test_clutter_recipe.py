@@ -92,6 +92,9 @@ PRESET_VALUES = {
                         steps=300),
     "gs-cpu-equi-hard": dict(task="grasp_slide", backbone="equivariant", head_channels=32, hard_fraction=0.5,
                              guard_force=20.0, reward_scheme="unlock", explore_weights=(2.0, 1.0, 1.0), updates_per_step=2),
+    "gs-cpu-equi-fit": dict(task="grasp_slide", backbone="equivariant", head_channels=32, hard_fraction=0.5,
+                            guard_force=20.0, reward_scheme="unlock", explore_weights=(2.0, 1.0, 1.0), updates_per_step=2,
+                            mask_grasp_fit=True),
 }
 
 

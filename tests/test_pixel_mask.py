@@ -95,11 +95,49 @@ def test_an_empty_heightmap_allows_everything():
 
 @pytest.mark.parametrize("kwargs", [dict(primitives=("push",)), dict(primitives=()), dict(num_rotations=0),
                                     dict(min_height=-1.0), dict(slide_clear_px=-1),
-                                    dict(slide_ahead_px=0)])
+                                    dict(slide_ahead_px=0), dict(pixel_size=0.0), dict(fit_tolerance=-1e-3)])
 def test_bad_mask_options_raise(kwargs):
     args = dict(primitives=("grasp",), num_rotations=R) | kwargs
     with pytest.raises(ValueError):
         HeightmapActionMask(**args)
+
+
+def test_grasp_fit_masks_grasps_whose_open_fingers_would_strike_the_map():
+    from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+    px, size = 0.007, 32
+    ws = WorkspaceSpec(heightmap_size=size, pixel_size=px, num_rotations=4)
+    mask = HeightmapActionMask.for_workspace(("grasp",), ws, grasp_fit=True)
+    assert (mask.grasp_depth, mask.pixel_size) == (pytest.approx(0.02), px)
+    lone = torch.zeros(1, size, size)
+    lone[0, 13:19, 13:19] = 0.04  # a 4.2 cm cube: the jaws (8 cm open) fit over it wherever their pads bear on it
+    maps = mask.pixel_masks(lone)[0, 0]
+    across_x, across_y = torch.zeros(size, size, dtype=torch.bool), torch.zeros(size, size, dtype=torch.bool)
+    across_x[14:18, 13:19] = True  # pads 1.75 cm wide: their edges lie a pixel beside the grasp's row
+    across_y[13:19, 14:18] = True
+    assert torch.equal(maps[0], across_x) and torch.equal(maps[1], across_y)
+    row = torch.zeros(1, size, size)
+    row[0, 13:19, 10:22] = 0.04  # two such cubes pressed together along x (columns): 8.4 cm, wider than the jaws
+    maps = mask.pixel_masks(row)[0, 0]
+    assert not maps[0].any() and not maps[2].any()  # closing along x lands a finger on the row
+    assert maps[1].sum() == maps[3].sum() == 60 and maps[1, 13:19, 11:21].all()  # closing along y fits over it
+    tall = row.clone()
+    tall[0, 7:9, 13:19] = 0.12  # a tall neighbour 3 cm from the row's side: the fingers, or the hand, strike it
+    maps = mask.pixel_masks(tall)[0, 0]
+    assert not maps[1, 13:19].any() and maps[1, 7:9, 14:18].all()  # the 1.4 cm thick neighbour can be grasped
+
+
+def test_grasp_fit_falls_back_to_material_where_no_grasp_fits():
+    from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+    ws = WorkspaceSpec(heightmap_size=32, pixel_size=0.007, num_rotations=4)
+    block = torch.zeros(1, 32, 32)
+    block[0, 8:24, 8:24] = 0.04  # an 11 cm square slab: no jaw opening spans it
+    fit = HeightmapActionMask.for_workspace(("grasp", "left_slide"), ws, grasp_fit=True).pixel_masks(block)[0]
+    plain = HeightmapActionMask.for_workspace(("grasp", "left_slide"), ws).pixel_masks(block)[0]
+    assert torch.equal(fit, plain) and fit[0].any()
+    with pytest.raises(ValueError, match="min_height"):
+        HeightmapActionMask(("grasp",), 4, min_height=None, grasp_fit=True)
 
 
 def heightmap_td(b: int) -> TensorDict:

@@ -45,6 +45,26 @@ def test_slide_then_grasp_oracle_frees_the_row_and_grasps(row):
     assert info["grasp_success"], info
 
 
+def test_grasp_fit_mask_sees_the_locked_row_and_the_bar_the_slide_freed(row):
+    """The heightmap's grasp-fit mask agrees with the shape check: no grasp fits over the locked row; after the
+    oracle's slide, some grasps fit (on the freed bar)."""
+    import torch
+
+    from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
+
+    mask = HeightmapActionMask.for_workspace(("grasp",), WS, grasp_fit=True)
+
+    def fitting(obs):
+        height = torch.as_tensor(obs["depth_heightmap"]).reshape(1, WS.heightmap_size, WS.heightmap_size)
+        return int(mask.grasp_fits(height, height > mask.min_height).sum())
+
+    obs, _ = row.reset(seed=0)
+    assert fitting(obs) == 0
+    oracle = FeasibleGraspOracle(row.unwrapped, slides=True)
+    obs, _, _, _, info = row.step(oracle(obs))
+    assert info["slide_unlocked"] >= 1 and fitting(obs) > 0
+
+
 def test_oracle_bench_names_bad_options():
     with pytest.raises(ValueError, match="unknown oracle"):
         run(ClutterOracleBenchConfig(oracle="psychic"))

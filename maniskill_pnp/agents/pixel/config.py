@@ -126,6 +126,9 @@ class ClutterConfig(RunConfig):
     """Act, explore and bootstrap only over grasps where the heightmap shows material (see maniskill_pnp.agents.pixel.mask)."""
     mask_min_height: float = 0.01
     """Height (m) above the table from which a pixel counts as material for ``mask_empty``."""
+    mask_grasp_fit: bool = False
+    """Also mask out grasps whose open fingers, lowered to the grasp's depth, would strike the heightmap (a neighbour
+    pressed against the object, or the object itself when wider than the jaws); needs ``mask_empty``."""
     learning_starts: int = 1
     """Transitions in the replay before the first SGD step."""
     replay_capacity: int = 2000
@@ -212,6 +215,8 @@ class ClutterConfig(RunConfig):
         if not 0.0 <= self.hard_fraction <= 1.0 or self.packed_fraction + self.hard_fraction > 1.0:
             raise ValueError(f"hard_fraction must be in [0, 1 - packed_fraction], got {self.hard_fraction} "
                              f"(packed_fraction {self.packed_fraction})")
+        if self.mask_grasp_fit and not self.mask_empty:
+            raise ValueError("mask_grasp_fit refines the material mask: it needs mask_empty")
         if self.guard_force is not None and not (math.isfinite(self.guard_force) and self.guard_force > 0):
             raise ValueError(f"guard_force must be a positive force in N (or None: unguarded), got {self.guard_force}")
         if not math.isfinite(self.slide_margin) or (self.slide_margin and self.task != "grasp_slide"):

@@ -121,6 +121,9 @@ class ClutterEvalConfig:
     slide_margin: float | None = None
     """A G&S agent slides only where a slide's Q value beats the best grasp's by more than this (None: the run's own
     ``slide_margin``, 0 unless it was trained with one)."""
+    mask_grasp_fit: bool | None = None
+    """Mask out grasps whose open fingers would strike the heightmap (see ``HeightmapActionMask.grasp_fit``); None:
+    as the run was trained (its ``mask_grasp_fit``)."""
     avoid_repeats: bool = False
     """Never repeat an action that failed (a failed grasp, a slide that changed nothing) until the next success:
     a failure that leaves the scene as it was leaves the greedy argmax where it was, so without this memory the
@@ -463,7 +466,8 @@ def run(cfg: ClutterEvalConfig) -> dict:
     device = resolve_device(cfg.device)
     # 1. load the policy (a bad file fails before any env is made)
     ckpt = cfg.checkpoint_path
-    actor, train_cfg, counters = load_policy(ckpt, device, grasp_only=cfg.grasp_only, slide_margin=cfg.slide_margin)
+    actor, train_cfg, counters = load_policy(ckpt, device, grasp_only=cfg.grasp_only, slide_margin=cfg.slide_margin,
+                                               mask_grasp_fit=cfg.mask_grasp_fit)
     primitives = actor.q_network.primitives
     env_cfg = train_cfg if cfg.num_objects is None else dataclasses.replace(train_cfg, num_objects=cfg.num_objects)
 

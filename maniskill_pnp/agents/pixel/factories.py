@@ -99,12 +99,13 @@ def make_model(cfg: ClutterConfig) -> MultiPrimitiveQNetwork:
 
 def make_action_mask(cfg: ClutterConfig, enabled: tuple[str, ...] | None = None) -> HeightmapActionMask | None:
     """The action mask of the config: with ``mask_empty``, grasps on material and slides from bare table towards
-    material within half a slide; only the ``enabled`` primitives (e.g. ``("grasp",)`` for a G&S agent restricted to
-    grasps); None when neither applies."""
+    material within half a slide, and with ``mask_grasp_fit`` only grasps the open gripper fits; only the ``enabled``
+    primitives (e.g. ``("grasp",)`` for a G&S agent restricted to grasps); None when neither applies."""
     if not cfg.mask_empty and enabled is None:
         return None
     return HeightmapActionMask.for_workspace(
-        cfg.primitives, make_workspace(cfg), min_height=cfg.mask_min_height if cfg.mask_empty else None, enabled=enabled
+        cfg.primitives, make_workspace(cfg), min_height=cfg.mask_min_height if cfg.mask_empty else None, enabled=enabled,
+        grasp_fit=cfg.mask_empty and cfg.mask_grasp_fit,
     )
 
 
@@ -117,11 +118,12 @@ def make_policy(cfg: ClutterConfig, model: MultiPrimitiveQNetwork, action_spec, 
                              primitive_margins=cfg.primitive_margins(), **schedule)
 
 
-def load_policy(path: Path, device: torch.device, grasp_only: bool = False,
-                slide_margin: float | None = None) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
+def load_policy(path: Path, device: torch.device, grasp_only: bool = False, slide_margin: float | None = None,
+                mask_grasp_fit: bool | None = None) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
     """The greedy actor of a checkpoint (network in eval mode on ``device``, the training's action mask, and with
     ``grasp_only`` only the grasp primitive enabled; ``slide_margin`` replaces the run's own, see
-    :attr:`ClutterConfig.slide_margin`), its training config and counters.
+    :attr:`ClutterConfig.slide_margin`, and ``mask_grasp_fit`` the run's :attr:`ClutterConfig.mask_grasp_fit`), its
+    training config and counters.
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
@@ -141,7 +143,8 @@ def load_policy(path: Path, device: torch.device, grasp_only: bool = False,
     except RuntimeError as e:
         raise ValueError(f"checkpoint {path}: the weights do not fit the network of its config: {e}") from e
     model.to(device).eval()
-    mask = make_action_mask(train_cfg, enabled=("grasp",) if grasp_only else None)
+    mask_cfg = train_cfg if mask_grasp_fit is None else dataclasses.replace(train_cfg, mask_grasp_fit=bool(mask_grasp_fit))
+    mask = make_action_mask(mask_cfg, enabled=("grasp",) if grasp_only else None)
     if slide_margin is not None and train_cfg.task != "grasp_slide":
         raise ValueError(f"checkpoint {path} is a grasp-only agent ({train_cfg.env_id}): a slide margin needs a G&S agent")
     margins = train_cfg.primitive_margins(slide_margin)

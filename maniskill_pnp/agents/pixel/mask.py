@@ -12,6 +12,16 @@ ahead on its path, within ``slide_ahead_px`` along the push direction of its rot
 (:meth:`~maniskill_pnp.tasks.workspace.WorkspaceSpec.slide_direction`). A start merely *near* material is not
 enough: the greedy policy of an early G&S run repeated a slide that began beside an object and pushed away from it.
 
+With ``grasp_fit`` a grasp must also *fit* where the heightmap shows it (the "predicted to fail" masks of SPOT):
+the open Panda gripper (its fingers' collision boxes and its hand's hull, from the robot's URDF) lowered straight down
+to the grasp's fingertip height (:meth:`~maniskill_pnp.tasks.workspace.WorkspaceSpec.grasp_tcp_height` of the height at
+the pixel) must stay above every height of the map under it, within ``fit_tolerance``. A grasp whose fingers would
+strike a neighbour (an object in a row pressed against others, a 1-3 mm gap that the map cannot resolve) or land on
+the object itself (wider than the open jaws) is masked out, so a grasp-and-slide agent facing a locked arrangement
+has only its slides left. Where no grasp fits, the grasps fall back to the material test, so a grasp-only agent
+still acts. It is the heightmap's view of :mod:`~maniskill_pnp.tasks.grasp_feasibility` (which sees the collision
+shapes): no object state, only what the camera shows.
+
 The mask is a pure function of the height channel, so it costs no replay storage: the actor computes it from the
 current heightmap and the loss from the next one.
 
@@ -26,10 +36,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
 from maniskill_pnp.tasks.workspace import WorkspaceSpec
+
+#: Default tolerance (m) of the grasp-fit test: a finger may come this close above a height of the map (its noise).
+FIT_TOLERANCE = 0.003
 
 #: Primitive names the mask knows: grasps need material at the pixel, slides material ahead on their path.
 GRASP, SLIDES = "grasp", ("left_slide", "right_slide")
@@ -50,6 +64,12 @@ class HeightmapActionMask:
         slide_ahead_px: ... and where material lies within this many pixels ahead along its push direction.
         enabled: Primitives that may act at all (None: all); the others are masked out everywhere, e.g.
             ``("grasp",)`` restricts a grasp-and-slide agent to its grasps.
+        grasp_fit: Also mask out grasps where the open gripper, lowered to the grasp's depth, would strike the
+            heightmap (needs ``min_height``).
+        pixel_size: Side of a heightmap pixel (m), for ``grasp_fit``.
+        grasp_depth: How far below the height at the pixel the fingertip TCP goes (m), for ``grasp_fit``.
+        min_tip_height: The fingertip TCP never goes below this height above the table (m), for ``grasp_fit``.
+        fit_tolerance: A gripper point may be this far (m) below a height of the map and still count as clear.
     """
 
     primitives: tuple[str, ...]
@@ -58,6 +78,11 @@ class HeightmapActionMask:
     slide_clear_px: int = 1
     slide_ahead_px: int = 6
     enabled: tuple[str, ...] | None = None
+    grasp_fit: bool = False
+    pixel_size: float = 0.002
+    grasp_depth: float = 0.02
+    min_tip_height: float = 0.012
+    fit_tolerance: float = FIT_TOLERANCE
 
     def __post_init__(self):
         object.__setattr__(self, "primitives", tuple(self.primitives))
@@ -76,6 +101,13 @@ class HeightmapActionMask:
             object.__setattr__(self, "enabled", tuple(self.enabled))
             if not self.enabled or set(self.enabled) - set(self.primitives):
                 raise ValueError(f"enabled must be a non-empty subset of {self.primitives}, got {self.enabled!r}")
+        if self.grasp_fit and self.min_height is None:
+            raise ValueError("grasp_fit needs the material test (a min_height)")
+        if not self.pixel_size > 0 or self.min_tip_height < 0 or self.fit_tolerance < 0:
+            raise ValueError(
+                f"pixel_size must be > 0, min_tip_height and fit_tolerance >= 0 (m), got {self.pixel_size!r}, "
+                f"{self.min_tip_height!r}, {self.fit_tolerance!r}"
+            )
 
     @classmethod
     def for_workspace(cls, primitives, workspace: WorkspaceSpec, ahead_fraction: float = 0.5, **kwargs):
@@ -86,8 +118,80 @@ class HeightmapActionMask:
         px = workspace.pixel_size
         return cls(
             primitives, workspace.num_rotations, slide_clear_px=int(round(workspace.slide_clearance / px)),
-            slide_ahead_px=max(1, int(round(ahead_fraction * workspace.slide_length / px))), **kwargs,
+            slide_ahead_px=max(1, int(round(ahead_fraction * workspace.slide_length / px))), pixel_size=px,
+            grasp_depth=workspace.finger_length - workspace.grasp_z_offset, min_tip_height=workspace.min_tip_height,
+            **kwargs,
         )
+
+    @cached_property
+    def _gripper(self) -> tuple[int, list[tuple[torch.Tensor, torch.Tensor]], torch.Tensor, object]:
+        """The open gripper in pixel offsets, built once per mask: ``(reach, descent, closing, model)``.
+
+        ``descent[r]`` is ``(cells, lowest)``: the pixel offsets ``(points, 2)`` under the gripper at rotation ``r`` and
+        its lowest height above the fingertip TCP over each (m). ``closing[r]`` ``(2, 3, S, 2)``: for each pad (+y,
+        -y), three lines across its width (its two edges and middle) from its inner face towards the other pad, ``S``
+        offsets half a pixel apart. ``reach`` is the largest offset, ``model`` the
+        :class:`~maniskill_pnp.tasks.grasp_feasibility.GripperModel`. Rotation ``r`` closes the jaws along
+        ``r * 360° / num_rotations`` from the column axis."""
+        from maniskill_pnp.tasks.grasp_feasibility import panda_gripper
+
+        model = panda_gripper()
+        points = model.points  # x along the pads' width, y the closing direction, lowest height above the TCP
+        step = self.pixel_size / 2
+        travel = np.arange(0.0, 2 * model.pad_inner + step / 2, step)
+        lines = np.array([[[(x, sign * (model.pad_inner - t)) for t in travel]
+                           for x in (-model.pad_half_width, 0.0, model.pad_half_width)] for sign in (1.0, -1.0)])
+
+        def cells(xy: np.ndarray, yaw: float) -> np.ndarray:  # grasp-frame (x, y) -> pixel offsets (row, col)
+            dx = xy[..., 1] * np.cos(yaw) - xy[..., 0] * np.sin(yaw)
+            dy = xy[..., 1] * np.sin(yaw) + xy[..., 0] * np.cos(yaw)
+            return np.round(np.stack([dy, dx], axis=-1) / self.pixel_size).astype(np.int64)
+
+        descent, closing, reach = [], [], 0
+        for rot in range(self.num_rotations):
+            yaw = rot * 2 * np.pi / self.num_rotations
+            keys, inverse = np.unique(cells(points[:, :2], yaw), axis=0, return_inverse=True)
+            lowest = np.full(len(keys), np.inf)
+            np.minimum.at(lowest, inverse.reshape(-1), points[:, 2])
+            reach = max(reach, int(np.abs(keys).max()))
+            descent.append((torch.from_numpy(keys), torch.from_numpy(lowest).float()))
+            closing.append(torch.from_numpy(cells(lines, yaw)))
+        return reach, descent, torch.stack(closing), model
+
+    def grasp_fits(self, height: torch.Tensor, where: torch.Tensor) -> torch.Tensor:
+        """``bool (N, R, H, W)``: at the pixels of ``where`` ``(N, H, W)``, whether a grasp at each rotation fits the
+        heightmap ``height`` ``(N, H, W)`` (m above the table; extended by bare table beyond its edges); False
+        elsewhere. It fits when
+
+        1. the open gripper, lowered to the grasp's fingertip height, stays above every height under it (within
+           ``fit_tolerance``), and
+        2. closing would bear on material: along each pad's two edges and middle, closing from its inner face meets
+           material that reaches into the pads' height band, and where it is met differs across the pad's width by
+           at most the friction slope of :mod:`~maniskill_pnp.tasks.grasp_feasibility` plus a pixel (a corner
+           pinched obliquely is no grasp).
+        """
+        from maniskill_pnp.tasks.grasp_feasibility import FRICTION, MIN_GRIP
+
+        n, h, w = height.shape
+        reach, descent, closing, model = self._gripper
+        k, dev = 2 * reach + 1, height.device
+        windows = F.pad(height, (reach, reach, reach, reach)).unfold(1, k, 1).unfold(2, k, 1)  # (N, H, W, K, K) view
+        at = where.nonzero(as_tuple=True)
+        around = windows[at].reshape(-1, k * k)  # (M, K*K): the neighbourhoods of the pixels asked about
+        tcp = torch.clamp(height[at] - self.grasp_depth, min=self.min_tip_height)
+        band = (tcp + model.pad_band[0] + MIN_GRIP)[:, None, None, None]
+        spread = FRICTION * 2 * model.pad_half_width + self.pixel_size
+        flat_closing = ((closing[..., 0] + reach) * k + closing[..., 1] + reach).to(dev)  # (R, 2, 3, S)
+        fits = torch.zeros(n, self.num_rotations, h, w, dtype=torch.bool, device=dev)
+        for rot, (cells, lowest) in enumerate(descent):
+            under = around[:, ((cells[:, 0] + reach) * k + cells[:, 1] + reach).to(dev)]  # (M, points)
+            clear = (under - lowest.to(dev)).amax(dim=-1) <= tcp + self.fit_tolerance
+            material = around[:, flat_closing[rot]] > band  # (M, 2 pads, 3 lines, S)
+            met = material.any(dim=-1)
+            first = material.to(torch.uint8).argmax(dim=-1).float() * (self.pixel_size / 2)  # travel to first contact
+            flat = (first.amax(dim=-1) - first.amin(dim=-1) <= spread).all(dim=-1)
+            fits[at[0], rot, at[1], at[2]] = clear & met.all(dim=-1).all(dim=-1) & flat
+        return fits
 
     @cached_property
     def _ahead_kernels(self) -> dict[str, torch.Tensor]:
@@ -124,6 +228,10 @@ class HeightmapActionMask:
         for name in self.primitives:
             if self.enabled is not None and name not in self.enabled:
                 masks.append(torch.zeros(n, rots, h, w, dtype=torch.bool, device=flat.device))
+            elif name == GRASP and self.grasp_fit:
+                fit = self.grasp_fits(flat[:, 0], occupied[:, 0])
+                none_fit = ~fit.flatten(1).any(dim=1)[:, None, None, None]  # fall back to the material test
+                masks.append(torch.where(none_fit, occupied.expand(n, rots, h, w), fit))
             elif name == GRASP or self.min_height is None:
                 masks.append(occupied.expand(n, rots, h, w))
             else:
@@ -151,4 +259,4 @@ class HeightmapActionMask:
         return self(observation[..., 3, :, :])
 
 
-__all__ = ["HeightmapActionMask"]
+__all__ = ["FIT_TOLERANCE", "HeightmapActionMask"]
