@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -133,9 +135,12 @@ def test_grasp_fit_falls_back_to_material_where_no_grasp_fits():
     ws = WorkspaceSpec(heightmap_size=32, pixel_size=0.007, num_rotations=4)
     block = torch.zeros(1, 32, 32)
     block[0, 8:24, 8:24] = 0.04  # an 11 cm square slab: no jaw opening spans it
-    fit = HeightmapActionMask.for_workspace(("grasp", "left_slide"), ws, grasp_fit=True).pixel_masks(block)[0]
-    plain = HeightmapActionMask.for_workspace(("grasp", "left_slide"), ws).pixel_masks(block)[0]
-    assert torch.equal(fit, plain) and fit[0].any()
+    fit = HeightmapActionMask.for_workspace(("grasp", "left_slide"), ws, grasp_fit=True)
+    plain = HeightmapActionMask.for_workspace(("grasp", "left_slide"), ws)
+    maps, plain_maps = fit.pixel_masks(block)[0], plain.pixel_masks(block)[0]
+    assert not maps[0].any() and torch.equal(maps[1], plain_maps[1]) and maps[1].any()  # only slides are left
+    grasps_only = dataclasses.replace(fit, enabled=("grasp",)).pixel_masks(block)[0]
+    assert torch.equal(grasps_only[0], plain_maps[0]) and plain_maps[0].any()  # ... or, with none, every grasp on material
     with pytest.raises(ValueError, match="min_height"):
         HeightmapActionMask(("grasp",), 4, min_height=None, grasp_fit=True)
 

@@ -18,9 +18,10 @@ to the grasp's fingertip height (:meth:`~maniskill_pnp.tasks.workspace.Workspace
 the pixel) must stay above every height of the map under it, within ``fit_tolerance``. A grasp whose fingers would
 strike a neighbour (an object in a row pressed against others, a 1-3 mm gap that the map cannot resolve) or land on
 the object itself (wider than the open jaws) is masked out, so a grasp-and-slide agent facing a locked arrangement
-has only its slides left. Where no grasp fits, the grasps fall back to the material test, so a grasp-only agent
-still acts. It is the heightmap's view of :mod:`~maniskill_pnp.tasks.grasp_feasibility` (which sees the collision
-shapes): no object state, only what the camera shows.
+has only its slides left. Where no grasp fits and no other primitive may act (a grasp-only agent, or no slide
+starts anywhere), the grasps fall back to the material test, so the agent still acts. It is the heightmap's view
+of :mod:`~maniskill_pnp.tasks.grasp_feasibility` (which sees the collision shapes): no object state, only what the
+camera shows.
 
 The mask is a pure function of the height channel, so it costs no replay storage: the actor computes it from the
 current heightmap and the loss from the next one.
@@ -229,15 +230,18 @@ class HeightmapActionMask:
             if self.enabled is not None and name not in self.enabled:
                 masks.append(torch.zeros(n, rots, h, w, dtype=torch.bool, device=flat.device))
             elif name == GRASP and self.grasp_fit:
-                fit = self.grasp_fits(flat[:, 0], occupied[:, 0])
-                none_fit = ~fit.flatten(1).any(dim=1)[:, None, None, None]  # fall back to the material test
-                masks.append(torch.where(none_fit, occupied.expand(n, rots, h, w), fit))
+                masks.append(self.grasp_fits(flat[:, 0], occupied[:, 0]))
             elif name == GRASP or self.min_height is None:
                 masks.append(occupied.expand(n, rots, h, w))
             else:
                 kernels = self._ahead_kernels[name.removesuffix("_slide")].to(flat.device)
                 ahead = F.conv2d(occupied.float(), kernels, padding=self.slide_ahead_px) > 0
                 masks.append(clear & ahead)
+        if self.grasp_fit and GRASP in self.primitives and (self.enabled is None or GRASP in self.enabled):
+            # Where no grasp fits and no other primitive may act, grasps fall back to the material test.
+            g = self.primitives.index(GRASP)
+            stuck = ~torch.stack(masks, dim=1).flatten(1).any(dim=1)[:, None, None, None]
+            masks[g] = torch.where(stuck, occupied.expand(n, rots, h, w), masks[g])
         return torch.stack(masks, dim=1).reshape(*batch, len(self.primitives), rots, h, w)
 
     def __call__(self, height: torch.Tensor) -> torch.Tensor:
