@@ -32,7 +32,9 @@ def _export_clutter(args) -> None:
     from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file, export_weights
 
     try:
-        path = export_weights(checkpoint_file(args.checkpoint), args.out, half=args.half)
+        acting = {k: v for k, v in dict(slide_margin=args.slide_margin, mask_grasp_fit=args.mask_grasp_fit).items()
+                  if v is not None}
+        path = export_weights(checkpoint_file(args.checkpoint), args.out, half=args.half, **acting)
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"export-clutter: {e}") from e
     print(f"agent: {path} ({path.stat().st_size / 2**20:.1f} MiB)")
@@ -525,6 +527,10 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--out", type=Path, required=True, help="file to write (e.g. my-agent.pt)")
     export.add_argument("--half", action=argparse.BooleanOptionalAction, default=True,
                         help="store floating-point weights as float16 (default: %(default)s)")
+    export.add_argument("--slide-margin", type=float, default=None, help="the agent slides only where a slide's Q "
+                        "beats the best grasp's by more than this (default: the run's own)")
+    export.add_argument("--mask-grasp-fit", action=argparse.BooleanOptionalAction, default=None,
+                        help="the agent grasps only where a grasp fits the heightmap (default: as the run was trained)")
     export.set_defaults(func=_export_clutter)
 
     check = sub.add_parser("check-scene", help="which objects of scene files no top-down grasp can take (locked): "

@@ -512,7 +512,7 @@ HELP_OPTIONS = {
                                             if f.name != "checkpoint"))],
     "plot-clutter": ["runs", "--labels", "--window", "--out"],
     "record-clutter": ["checkpoint", *_flags(*(f.name for f in dataclasses.fields(ClutterVideoConfig) if f.name != "checkpoint"))],
-    "export-clutter": ["checkpoint", "--out", "--half"],
+    "export-clutter": ["checkpoint", "--out", "--half", "--slide-margin", "--mask-grasp-fit"],
     "record-conveyor": ["checkpoint", *_flags(*(f.name for f in dataclasses.fields(ConveyorVideoConfig) if f.name != "checkpoint"))],
     "quickstart": _flags(*(f.name for f in dataclasses.fields(QuickstartConfig))),
 }

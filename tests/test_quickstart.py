@@ -62,3 +62,13 @@ def test_export_keeps_only_config_and_weights(tiny_clutter_run, tmp_path):
     assert next(actor.q_network.parameters()).dtype == torch.float32
     with pytest.raises(SystemExit, match="export-clutter: .*nowhere"):
         cli(["export-clutter", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x.pt")])
+
+
+def test_export_sets_how_the_agent_acts_and_nothing_else(tiny_clutter_run, tmp_path):
+    cli(["export-clutter", str(tiny_clutter_run), "--out", str(tmp_path / "fit.pt"), "--mask-grasp-fit"])
+    _, cfg, _ = load_policy(tmp_path / "fit.pt", torch.device("cpu"))
+    assert cfg.mask_grasp_fit and not load_checkpoint(tiny_clutter_run / "checkpoint.pt")["config"].get("mask_grasp_fit")
+    with pytest.raises(ValueError, match="slide_margin"):  # a grasp-only agent has no slides
+        export_weights(tiny_clutter_run / "checkpoint.pt", tmp_path / "x.pt", slide_margin=0.5)
+    with pytest.raises(ValueError, match="only"):
+        export_weights(tiny_clutter_run / "checkpoint.pt", tmp_path / "x.pt", lr=1.0)

@@ -12,6 +12,7 @@ it names.
 
 from __future__ import annotations
 
+import dataclasses
 import random
 import shutil
 from pathlib import Path
@@ -105,18 +106,35 @@ def restore(payload: dict, run_dir: Path, *, replay, model, loss, optimizer, egr
     set_rng_state(payload["rng"])
 
 
-def export_weights(checkpoint: Path, dest: Path, half: bool = True) -> Path:
+#: Config fields an exported agent may change: how it acts, not what it learned.
+ACTING_FIELDS = ("slide_margin", "mask_grasp_fit")
+
+
+def export_weights(checkpoint: Path, dest: Path, half: bool = True, **acting) -> Path:
     """A shareable agent from a training checkpoint: only its config, counters and network weights (float16 with
     ``half``), in the checkpoint format, so ``eval-clutter`` and ``record-clutter`` load it like the original.
-    Optimizer, target network, RNG and replay are dropped: it cannot be resumed."""
+    Optimizer, target network, RNG and replay are dropped: it cannot be resumed. ``acting`` sets fields of
+    :data:`ACTING_FIELDS` in the exported config (e.g. ``slide_margin=0.5``), so the agent acts that way by default.
+
+    Raises:
+        ValueError: a field outside :data:`ACTING_FIELDS`, or a value its config rejects.
+    """
+    from maniskill_pnp.agents.pixel.config import ClutterConfig
+
+    unknown = sorted(set(acting) - set(ACTING_FIELDS))
+    if unknown:
+        raise ValueError(f"an exported agent may change only {ACTING_FIELDS}, got {unknown}")
     payload = load_checkpoint(checkpoint)
+    config = payload["config"]
+    if acting:
+        config = dataclasses.replace(ClutterConfig.from_json(config), **acting).to_json()
     model = {k: v.half() if half and v.is_floating_point() else v for k, v in payload["model"].items()}
-    slim = dict(format=CHECKPOINT_FORMAT, config=payload["config"], model=model, counters=payload.get("counters", {}))
+    slim = dict(format=CHECKPOINT_FORMAT, config=config, model=model, counters=payload.get("counters", {}))
     atomic_write_bytes(Path(dest), lambda f: torch.save(slim, f))
     return Path(dest)
 
 
 __all__ = [
-    "CHECKPOINT_FORMAT", "CHECKPOINT_NAME", "checkpoint_file", "export_weights", "load_checkpoint", "restore",
+    "ACTING_FIELDS", "CHECKPOINT_FORMAT", "CHECKPOINT_NAME", "checkpoint_file", "export_weights", "load_checkpoint", "restore",
     "rng_state", "save_checkpoint", "set_rng_state", "write_checkpoint",
 ]
