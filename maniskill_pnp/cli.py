@@ -397,7 +397,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_demo)
 
     quick = sub.add_parser("quickstart", help="the README's main job: train and evaluate the conveyor Q-learning agent, "
-                           "then film one ClutterGraspSlide-v1 episode of the bundled gs-cpu-equi-hard agent (~10 min on 2 cores)")
+                           "then film one ClutterGraspSlide-v1 episode of the bundled gs-cpu-equi-fit agent (~10 min on 2 cores)")
     from maniskill_pnp.quickstart import QuickstartConfig
 
     add_config_options(quick, QuickstartConfig)

@@ -2,7 +2,7 @@
 
 1. train tabular Q-learning on ConveyorProximity-v1 (thesis part I; the default config, 3000 steps),
 2. evaluate it greedily on the thesis' random test cases 1-5 (table and learning-curve plot),
-3. film one ClutterGraspSlide-v1 episode of the G&S agent trained with the ``gs-cpu-equi-hard`` preset that ships
+3. film one ClutterGraspSlide-v1 episode of the G&S agent trained with the ``gs-cpu-equi-fit`` preset that ships
    with the package (:data:`BUNDLED_AGENTS`): an MP4 of the arm beside each decision and a decision strip.
 
 Run it with ``maniskill-pnp quickstart`` (``bash scripts/run.sh`` installs everything first); it prints where the
@@ -20,7 +20,8 @@ from maniskill_pnp.agents.run_io import require_positive, write_json
 
 #: Agents that ship with the package: network weights and config exported from a training run
 #: (:func:`~maniskill_pnp.agents.pixel.checkpoint.export_weights`); the README says which run and command.
-BUNDLED_AGENTS = {name: Path(__file__).parent / "weights" / f"{name}.pt" for name in ("gs-cpu-equi-hard", "gs-cpu-equi", "gs-cpu-small")}
+BUNDLED_AGENTS = {name: Path(__file__).parent / "weights" / f"{name}.pt"
+                  for name in ("gs-cpu-equi-fit", "gs-cpu-equi", "gs-cpu-small")}
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,7 @@ class QuickstartConfig:
     """Training steps of the conveyor Q-learning agent (one step is one phase decision)."""
     eval_iterations: int = 20
     """Greedy episodes per random test case of the conveyor evaluation (thesis: 50)."""
-    agent: str = "gs-cpu-equi-hard"
+    agent: str = "gs-cpu-equi-fit"
     """The G&S agent to film: a bundled agent's name (see BUNDLED_AGENTS) or a checkpoint / run folder."""
     scenario: str = "train"
     """ClutterGraspSlide-v1 scene of the filmed episode (as record-clutter's --scenario)."""

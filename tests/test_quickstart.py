@@ -41,7 +41,7 @@ def test_quickstart_names_a_missing_agent(tmp_path):
         QuickstartConfig(conveyor_steps=0)
 
 
-@pytest.mark.parametrize("name, backbone", [("gs-cpu-equi-hard", "equivariant"), ("gs-cpu-equi", "equivariant"),
+@pytest.mark.parametrize("name, backbone", [("gs-cpu-equi-fit", "equivariant"), ("gs-cpu-equi", "equivariant"),
                                                  ("gs-cpu-small", "small")])
 def test_bundled_agent_loads_as_a_three_primitive_greedy_policy(name, backbone):
     path = BUNDLED_AGENTS[name]
