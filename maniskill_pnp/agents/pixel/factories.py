@@ -105,7 +105,7 @@ def make_action_mask(cfg: ClutterConfig, enabled: tuple[str, ...] | None = None)
         return None
     return HeightmapActionMask.for_workspace(
         cfg.primitives, make_workspace(cfg), min_height=cfg.mask_min_height if cfg.mask_empty else None, enabled=enabled,
-        grasp_fit=cfg.mask_empty and cfg.mask_grasp_fit,
+        grasp_fit=cfg.mask_grasp_fit,  # the config allows it only with mask_empty
     )
 
 

@@ -126,12 +126,13 @@ class HeightmapActionMask:
 
     @cached_property
     def _gripper(self) -> tuple[int, list[tuple[torch.Tensor, torch.Tensor]], torch.Tensor, object]:
-        """The open gripper in pixel offsets, built once per mask: ``(reach, descent, closing, model)``.
+        """The open gripper as indices into a pixel's flattened ``(2 * reach + 1)²`` neighbourhood, built once per
+        mask: ``(reach, descent, closing, model)``.
 
-        ``descent[r]`` is ``(cells, lowest)``: the pixel offsets ``(points, 2)`` under the gripper at rotation ``r`` and
-        its lowest height above the fingertip TCP over each (m). ``closing[r]`` ``(2, 3, S, 2)``: for each pad (+y,
-        -y), three lines across its width (its two edges and middle) from its inner face towards the other pad, ``S``
-        offsets half a pixel apart. ``reach`` is the largest offset, ``model`` the
+        ``descent[r]`` is ``(index, lowest)``: the neighbourhood cells under the gripper at rotation ``r`` and its
+        lowest height above the fingertip TCP over each (m). ``closing[r]`` ``(2, 3, S)``: for each pad (+y, -y), three
+        lines across its width (its two edges and middle) from its inner face towards the other pad, ``S`` cells half a
+        pixel apart. ``reach`` is the largest offset (pixels), ``model`` the
         :class:`~maniskill_pnp.tasks.grasp_feasibility.GripperModel`. Rotation ``r`` closes the jaws along
         ``r * 360° / num_rotations`` from the column axis."""
         from maniskill_pnp.tasks.grasp_feasibility import panda_gripper
@@ -148,16 +149,23 @@ class HeightmapActionMask:
             dy = xy[..., 1] * np.sin(yaw) + xy[..., 0] * np.cos(yaw)
             return np.round(np.stack([dy, dx], axis=-1) / self.pixel_size).astype(np.int64)
 
-        descent, closing, reach = [], [], 0
+        under, closing = [], []
         for rot in range(self.num_rotations):
             yaw = rot * 2 * np.pi / self.num_rotations
             keys, inverse = np.unique(cells(points[:, :2], yaw), axis=0, return_inverse=True)
             lowest = np.full(len(keys), np.inf)
             np.minimum.at(lowest, inverse.reshape(-1), points[:, 2])
-            reach = max(reach, int(np.abs(keys).max()))
-            descent.append((torch.from_numpy(keys), torch.from_numpy(lowest).float()))
-            closing.append(torch.from_numpy(cells(lines, yaw)))
-        return reach, descent, torch.stack(closing), model
+            under.append((keys, lowest))
+            closing.append(cells(lines, yaw))
+        closing = np.stack(closing)
+        reach = int(max(max(np.abs(keys).max() for keys, _ in under), np.abs(closing).max()))
+        k = 2 * reach + 1
+
+        def flat(offsets: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy((offsets[..., 0] + reach) * k + offsets[..., 1] + reach)
+
+        descent = [(flat(keys), torch.from_numpy(lowest).float()) for keys, lowest in under]
+        return reach, descent, flat(closing), model
 
     def grasp_fits(self, height: torch.Tensor, where: torch.Tensor) -> torch.Tensor:
         """``bool (N, R, H, W)``: at the pixels of ``where`` ``(N, H, W)``, whether a grasp at each rotation fits the
@@ -182,12 +190,11 @@ class HeightmapActionMask:
         tcp = torch.clamp(height[at] - self.grasp_depth, min=self.min_tip_height)
         band = (tcp + model.pad_band[0] + MIN_GRIP)[:, None, None, None]
         spread = FRICTION * 2 * model.pad_half_width + self.pixel_size
-        flat_closing = ((closing[..., 0] + reach) * k + closing[..., 1] + reach).to(dev)  # (R, 2, 3, S)
+        closing = closing.to(dev)
         fits = torch.zeros(n, self.num_rotations, h, w, dtype=torch.bool, device=dev)
-        for rot, (cells, lowest) in enumerate(descent):
-            under = around[:, ((cells[:, 0] + reach) * k + cells[:, 1] + reach).to(dev)]  # (M, points)
-            clear = (under - lowest.to(dev)).amax(dim=-1) <= tcp + self.fit_tolerance
-            material = around[:, flat_closing[rot]] > band  # (M, 2 pads, 3 lines, S)
+        for rot, (index, lowest) in enumerate(descent):
+            clear = (around[:, index.to(dev)] - lowest.to(dev)).amax(dim=-1) <= tcp + self.fit_tolerance
+            material = around[:, closing[rot]] > band  # (M, 2 pads, 3 lines, S)
             met = material.any(dim=-1)
             first = material.to(torch.uint8).argmax(dim=-1).float() * (self.pixel_size / 2)  # travel to first contact
             flat = (first.amax(dim=-1) - first.amin(dim=-1) <= spread).all(dim=-1)
@@ -240,7 +247,7 @@ class HeightmapActionMask:
         if self.grasp_fit and GRASP in self.primitives and (self.enabled is None or GRASP in self.enabled):
             # Where no grasp fits and no other primitive may act, grasps fall back to the material test.
             g = self.primitives.index(GRASP)
-            stuck = ~torch.stack(masks, dim=1).flatten(1).any(dim=1)[:, None, None, None]
+            stuck = ~torch.stack([m.flatten(1).any(dim=1) for m in masks], dim=1).any(dim=1)[:, None, None, None]
             masks[g] = torch.where(stuck, occupied.expand(n, rots, h, w), masks[g])
         return torch.stack(masks, dim=1).reshape(*batch, len(self.primitives), rots, h, w)
 
