@@ -65,6 +65,27 @@ def test_grasp_fit_mask_sees_the_locked_row_and_the_bar_the_slide_freed(row):
     assert info["slide_unlocked"] >= 1 and fitting(obs) > 0
 
 
+def test_grasp_fit_mask_at_the_tasks_default_size_sees_the_locked_row():
+    """The same judgement on the task's own 224 px heightmap (2 mm pixels), as a user who turns the mask on at the
+    default size gets it: no grasp fits over the locked row, while the bare slide starts around it stay allowed."""
+    import torch
+
+    from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
+
+    env = gym.make("ClutterGraspSlide-v1", layout="complicated", guard_force=20.0,
+                   complicated_index=COMPLICATED_LAYOUT_NAMES.index("row_of_three"), **CPU)
+    try:
+        obs, _ = env.reset(seed=0)
+        ws = env.unwrapped.workspace
+        assert ws.heightmap_size == 224
+        mask = HeightmapActionMask.for_workspace(("grasp", "left_slide", "right_slide"), ws, grasp_fit=True)
+        height = torch.as_tensor(obs["depth_heightmap"]).reshape(1, 224, 224)
+        maps = mask.pixel_masks(height)[0]
+        assert (height > mask.min_height).sum() > 1000 and not maps[0].any() and maps[1:].any()
+    finally:
+        env.close()
+
+
 def test_oracle_bench_names_bad_options():
     with pytest.raises(ValueError, match="unknown oracle"):
         run(ClutterOracleBenchConfig(oracle="psychic"))
