@@ -303,3 +303,62 @@ def test_the_bin_region_holds_the_pile_over_its_footprint():
     assert not region.contains(np.array([cx, cy, cz + region.drop_height + 0.1]))
     statuses = object_status(np.stack([on_pile, [cx, cy, cz + region.drop_height + 0.1]]), WorkspaceSpec(bin=spec))
     assert statuses == ["bin", "lost"]
+
+
+def _pick_and_place_trace(direct: bool) -> tuple[np.ndarray, list]:
+    """A pick, place and home of the cube in a new CubeToBin-v1 (its PhysX scene carries state across resets)."""
+    import gymnasium as gym
+    from conftest import CPU
+
+    env = gym.make("CubeToBin-v1", obs_mode="state", control_mode="pd_joint_pos", **CPU)
+    prims = _prims(env, seed=1)
+    if not direct:
+        prims.executor.lockstep._drives = None  # ManiSkill's agent.set_action every control step
+    results = [prims.pick(_cube_grasp(env), target="cube"), prims.place(env.unwrapped.bin_spec.region()), prims.go_home()]
+    state = np.concatenate([env.unwrapped.cube.pose.raw_pose[0].numpy(), env.unwrapped.agent.robot.get_qpos()[0].numpy()])
+    env.close()
+    return state, [(r.ok, r.stage, r.sim_steps) for r in results]
+
+
+def test_direct_drive_targets_give_the_simulation_of_maniskills_set_action_bit_for_bit(cube_env):
+    assert _prims(cube_env).executor.lockstep._drives is not None  # the CPU env takes the direct path
+    direct, slow = _pick_and_place_trace(True), _pick_and_place_trace(False)
+    assert direct[1] == slow[1] and direct[1][1][0], direct[1]  # the same stages, steps, and the cube placed
+    np.testing.assert_array_equal(direct[0], slow[0])
+
+
+def test_direct_drives_follow_a_reset_gripper(cube_env):
+    prims = _prims(cube_env)
+    prims.executor.gripper(-1.0, 10)
+    assert np.max(prims.executor.finger_qpos()) < 0.03  # closed
+    cube_env.reset(seed=0)  # ManiSkill's reset opens the fingers and resets the controllers; the executor is told
+    prims.reset()
+    prims.executor.gripper(-1.0, 10)  # the same command as before the reset must close them again
+    assert np.max(prims.executor.finger_qpos()) < 0.03
+
+
+def test_obstacles_out_of_the_arms_reach_stay_out_of_the_checks_but_in_the_fingerprint(cube_env):
+    from maniskill_pnp.planning.robot import urdf_reach
+
+    prims = _prims(cube_env)
+    world, cube = prims.world, cube_env.unwrapped.cube
+    arm = world.arm
+    assert 1.2 < urdf_reach(arm.urdf) < 1.8 and urdf_reach(arm.urdf, arm.tcp_link) < urdf_reach(arm.urdf)
+    cube.set_pose(sapien.Pose(p=[3.0, 0.0, 0.02]))  # 3.6 m from the base
+    world.sync_scene(cube_env.unwrapped.scene)
+    far = world.fingerprint()
+    assert "cube" in world.obstacles and "cube#0" not in world._world.get_normal_object_names()
+    cube.set_pose(sapien.Pose(p=[3.0, 0.1, 0.02]))
+    world.sync_scene(cube_env.unwrapped.scene)
+    assert world.fingerprint() != far  # a moved parked object is another scene for the plan cache
+    cube.set_pose(sapien.Pose(p=[0.1, 0.1, 0.02]))  # within reach: checked again
+    world.sync_scene(cube_env.unwrapped.scene)
+    assert "cube#0" in world._world.get_normal_object_names()
+    q = prims.executor.qpos().copy()
+    assert world.is_valid(q)
+    # A held object larger than the allowance brings every shape back into the checks.
+    cube.set_pose(sapien.Pose(p=[3.0, 0.0, 0.02]))
+    world.sync_scene(cube_env.unwrapped.scene)
+    world.attach_box(np.array([0.2, 0.2, 0.2]), np.array([0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0]))
+    assert "cube#0" in world._world.get_normal_object_names()
+    world.detach()

@@ -23,7 +23,7 @@ import numpy as np
 import sapien
 
 from maniskill_pnp.cache import cache_dir
-from maniskill_pnp.planning.robot import ArmSpec
+from maniskill_pnp.planning.robot import ArmSpec, urdf_reach
 
 # A PhysX capsule or cylinder lies along its local x axis; FCL's lie along z. This turns z onto x.
 _Z_TO_X = sapien.Pose(q=[np.sqrt(0.5), 0.0, np.sqrt(0.5), 0.0])
@@ -56,6 +56,10 @@ class CollisionWorld:
         base_pose: Pose of the robot base in the world frame (x, y, z, qw, qx, qy, qz).
     """
 
+    #: Distance (m) from the TCP within which a held object lies entirely (:meth:`attach_box` checks it): with it,
+    #: the arm's reach (:attr:`reach`) bounds every point an arm carrying an object can touch.
+    HELD_REACH = 0.3
+
     def __init__(self, arm: ArmSpec, base_pose: np.ndarray | None = None):
         import mplib  # mplib segfaults with numpy 2; the package pins numpy<2
 
@@ -73,6 +77,11 @@ class CollisionWorld:
         self.obstacles: dict[str, list[Obstacle]] = {}
         self._attached = False
         self.margin = 0.0
+        # Shapes no configuration of the arm can reach stay out of the FCL world (every check would test them in
+        # vain: the pool's parked objects); they still count in the scene's fingerprint.
+        self.reach = max(urdf_reach(arm.urdf), urdf_reach(arm.urdf, arm.tcp_link) + self.HELD_REACH)
+        self._out_of_reach: dict[str, object] = {}
+        self._shapes: dict[tuple[str, int], _ShapeGeometry] = {}
 
     # ------------------------------------------------------------------ scene
     def sync_scene(
@@ -94,15 +103,28 @@ class CollisionWorld:
         self.margin = float(margin)
         for name in list(self.obstacles):
             for i, _ in enumerate(self.obstacles[name]):
-                self._world.remove_normal_object(f"{name}#{i}")
-        self.obstacles = {}
+                if f"{name}#{i}" not in self._out_of_reach:
+                    self._world.remove_normal_object(f"{name}#{i}")
+        self.obstacles, self._out_of_reach = {}, {}
         for name, actor in scene.actors.items():
             if name in ignore or name in skip:
                 continue
             for ob, shape in self._actor_obstacles(name, actor, env_idx):
                 i = len(self.obstacles.setdefault(name, []))
                 self.obstacles[name].append(ob)
-                self._world.set_normal_object(f"{name}#{i}", self._fcl_object(ob, shape))
+                geometry = self._geometry(name, i, shape)
+                fcl_object = self._fcl.CollisionObject(geometry.fcl(self.margin), ob.pose[:3], ob.pose[3:])
+                if ob.kind != "plane" and np.linalg.norm(ob.pose[:3]) - geometry.radius - self.margin > self.reach:
+                    self._out_of_reach[f"{name}#{i}"] = fcl_object
+                else:
+                    self._world.set_normal_object(f"{name}#{i}", fcl_object)
+
+    def _geometry(self, name: str, i: int, shape) -> _ShapeGeometry:
+        """The FCL geometry of shape ``i`` of actor ``name``, built once per shape and margin."""
+        cached = self._shapes.get((name, i))
+        if cached is None or cached.shape is not shape:
+            cached = self._shapes[(name, i)] = _ShapeGeometry(shape, self._fcl)
+        return cached
 
     def _actor_obstacles(self, name: str, actor, env_idx: int) -> Iterable[tuple[Obstacle, object]]:
         entity = actor._objs[env_idx]
@@ -110,37 +132,16 @@ class CollisionWorld:
         if body is None:
             return
         actor_pose = _pose(actor.pose.raw_pose[env_idx].cpu().numpy())
-        for shape in body.collision_shapes:
+        for i, shape in enumerate(body.collision_shapes):
             world = actor_pose * shape.local_pose
-            kind, signature = _shape_signature(shape)
+            geometry = self._geometry(name, i, shape)
+            kind, signature = geometry.kind, geometry.signature
             if kind in ("capsule", "cylinder"):
                 world = world * _Z_TO_X
             elif kind == "plane":
                 world = world * sapien.Pose(p=[self.margin - _PLANE_SLAB_HALF[0], 0.0, 0.0])
             local = self._base_inv * world
             yield Obstacle(name, kind, np.concatenate([local.p, local.q]), signature), shape
-
-    def _fcl_object(self, ob: Obstacle, shape):
-        fcl, m = self._fcl, self.margin
-        if ob.kind == "box":
-            geom = fcl.Box(*(2 * (np.asarray(shape.half_size, dtype=np.float64) + m)))
-        elif ob.kind == "sphere":
-            geom = fcl.Sphere(float(shape.radius) + m)
-        elif ob.kind == "capsule":
-            geom = fcl.Capsule(float(shape.radius) + m, 2 * float(shape.half_length))
-        elif ob.kind == "cylinder":
-            geom = fcl.Cylinder(float(shape.radius) + m, 2 * (float(shape.half_length) + m))
-        elif ob.kind == "plane":
-            geom = fcl.Box(*(2 * _PLANE_SLAB_HALF))
-        elif ob.kind == "convex":
-            geom = fcl.Convex(_grown_vertices(shape, m), np.asarray(shape.triangles, dtype=np.int32))
-        else:  # triangle mesh
-            verts = _grown_vertices(shape, m)
-            geom = fcl.BVHModel()
-            geom.beginModel()
-            geom.addSubModel(verts, np.asarray(shape.triangles, dtype=np.int32))
-            geom.endModel()
-        return fcl.CollisionObject(geom, ob.pose[:3], ob.pose[3:])
 
     def fingerprint(self, decimals: int = 3) -> str:
         """A short hash of every obstacle's kind, size and pose (rounded): equal iff the scene is the same."""
@@ -158,6 +159,10 @@ class CollisionWorld:
     # ------------------------------------------------------------------ held objects
     def attach_box(self, half_size: np.ndarray, pose_in_tcp: np.ndarray) -> None:
         """Treat a box held by the gripper as part of the arm (pose relative to the TCP link)."""
+        if np.linalg.norm(np.asarray(pose_in_tcp, np.float64)[:3]) + np.linalg.norm(half_size) > self.HELD_REACH:
+            for key, fcl_object in self._out_of_reach.items():  # an object this large may reach them
+                self._world.set_normal_object(key, fcl_object)
+            self._out_of_reach = {}
         self._planner.update_attached_box(2 * np.asarray(half_size, dtype=np.float64), np.asarray(pose_in_tcp, np.float64))
         self._world.set_use_attach(True)
         self._attached = True
@@ -267,6 +272,56 @@ def planning_urdf(urdf: Path) -> Path:
     return out
 
 
+class _ShapeGeometry:
+    """What the collision world needs of one PhysX collision shape, read once: its kind and size signature, the
+    radius about its frame's origin that holds it, and its FCL geometry per margin (built on first use)."""
+
+    def __init__(self, shape, fcl):
+        self.shape, self._fcl = shape, fcl
+        self.kind, self.signature = _shape_signature(shape)
+        self._by_margin: dict[float, object] = {}
+        if self.kind in ("convex", "mesh"):
+            self.vertices = np.asarray(shape.vertices, dtype=np.float64) * np.asarray(shape.scale, dtype=np.float64)
+            self.triangles = np.asarray(shape.triangles, dtype=np.int32)
+            self.radius = float(np.linalg.norm(self.vertices, axis=1).max())
+        elif self.kind == "box":
+            self.radius = float(np.linalg.norm(shape.half_size))
+        elif self.kind == "sphere":
+            self.radius = float(shape.radius)
+        elif self.kind in ("capsule", "cylinder"):
+            self.radius = float(shape.radius) + float(shape.half_length)
+        else:  # a plane: unbounded
+            self.radius = np.inf
+
+    def fcl(self, margin: float):
+        """The FCL geometry grown by ``margin`` (m)."""
+        geom = self._by_margin.get(margin)
+        if geom is None:
+            geom = self._by_margin[margin] = self._build(margin)
+        return geom
+
+    def _build(self, m: float):
+        fcl, shape = self._fcl, self.shape
+        if self.kind == "box":
+            return fcl.Box(*(2 * (np.asarray(shape.half_size, dtype=np.float64) + m)))
+        if self.kind == "sphere":
+            return fcl.Sphere(float(shape.radius) + m)
+        if self.kind == "capsule":
+            return fcl.Capsule(float(shape.radius) + m, 2 * float(shape.half_length))
+        if self.kind == "cylinder":
+            return fcl.Cylinder(float(shape.radius) + m, 2 * (float(shape.half_length) + m))
+        if self.kind == "plane":
+            return fcl.Box(*(2 * _PLANE_SLAB_HALF))
+        verts = _grown(self.vertices, m)
+        if self.kind == "convex":
+            return fcl.Convex(verts, self.triangles)
+        geom = fcl.BVHModel()  # triangle mesh
+        geom.beginModel()
+        geom.addSubModel(verts, self.triangles)
+        geom.endModel()
+        return geom
+
+
 def _pose(p: np.ndarray | sapien.Pose) -> sapien.Pose:
     if isinstance(p, sapien.Pose):
         return p
@@ -276,9 +331,8 @@ def _pose(p: np.ndarray | sapien.Pose) -> sapien.Pose:
     return sapien.Pose(p=p[:3], q=p[3:])
 
 
-def _grown_vertices(shape, margin: float) -> np.ndarray:
-    """Mesh vertices (scaled) pushed ``margin`` outward from the centroid: a convex shape grown by about ``margin``."""
-    verts = np.asarray(shape.vertices, dtype=np.float64) * np.asarray(shape.scale, dtype=np.float64)
+def _grown(verts: np.ndarray, margin: float) -> np.ndarray:
+    """Mesh vertices pushed ``margin`` outward from their centroid: a convex shape grown by about ``margin``."""
     if margin == 0.0:
         return verts
     out = verts - verts.mean(0)

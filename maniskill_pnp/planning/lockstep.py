@@ -149,6 +149,7 @@ class LockstepExecutor:
         self.dt = 1.0 / self.env.control_freq
         self._robot = self.env.agent.robot
         self._gripper = np.ones(self.num_envs)  # normalized gripper actions: +1 open, -1 closed
+        self._drives = DirectDrives.of(self.env)
 
     def reset(self, envs: Sequence[int] | None = None) -> None:
         """Forget the last gripper commands of ``envs`` (default: all; grippers are open after an env reset); call
@@ -179,8 +180,12 @@ class LockstepExecutor:
         if gripper is not None:
             self._gripper[:] = np.broadcast_to(np.asarray(gripper, dtype=np.float64), (self.num_envs,))
         q = np.asarray(q_targets, dtype=np.float64).reshape(self.num_envs, -1)
-        action = np.concatenate([q, self._gripper[:, None]], axis=1).astype(np.float32)
-        self.env._step_action(torch.as_tensor(action, device=self.env.device))
+        if self._drives is not None:
+            self._drives.set(q, float(self._gripper[0]))
+            self.env._step_action(None)  # ManiSkill's control step with the drive targets already set
+        else:
+            action = np.concatenate([q, self._gripper[:, None]], axis=1).astype(np.float32)
+            self.env._step_action(torch.as_tensor(action, device=self.env.device))
         self.control_steps += 1
         if self.on_control_step is not None:
             self.on_control_step()
@@ -260,6 +265,58 @@ class LockstepExecutor:
         self.run([Motion(gripper=float(c), min_steps=steps, settle_tol=None) for c in commands])
 
 
+class DirectDrives:
+    """The arm's and gripper's joint drive targets of a one-env CPU ManiSkill env, set without the controllers' per-step
+    Python work: the same float32 targets ManiSkill's ``pd_joint_pos`` controllers would set, written straight to the
+    PhysX joints.
+
+    ManiSkill's ``agent.set_action`` converts the action, runs both controllers and sets each joint's target through
+    tensor wrappers: about a third of a control step on the CPU. Here the arm's targets go to the joints directly
+    (and into the arm controller's ``_target_qpos``, which the controller's state and :meth:`LockstepExecutor.arm_targets`
+    read), and the gripper controller runs only when the fingers' PhysX targets differ from what its command sets
+    (a new command, or an env reset that changed them). The physics sees the same targets at the same steps, so
+    the simulation is bit-for-bit the one ManiSkill's own ``set_action`` gives (tested).
+
+    Use :meth:`of`, which gives None where the fast path does not apply (GPU simulation, several envs, other
+    controllers); the executor then takes ManiSkill's ``set_action``.
+    """
+
+    def __init__(self, arm_controller, gripper_controller):
+        self._arm, self._grip = arm_controller, gripper_controller
+        self._arm_joints = [j._objs[0] for j in arm_controller.joints]
+        self._grip_joints = [j._objs[0] for j in gripper_controller.joints]
+        self._grip_targets: dict[float, np.ndarray] = {}  # command -> the fingers' targets it sets
+
+    @classmethod
+    def of(cls, env) -> "DirectDrives | None":
+        """The direct drives of ``env`` (unwrapped), or None where ManiSkill's own ``set_action`` must run."""
+        from mani_skill.agents.controllers.pd_joint_pos import PDJointPosController, PDJointPosMimicController
+
+        controllers = getattr(getattr(env.agent, "controller", None), "controllers", {})
+        arm, grip = controllers.get("arm"), controllers.get("gripper")
+        if set(controllers) != {"arm", "gripper"} or env.gpu_sim_enabled or env.num_envs != 1:
+            return None
+        if type(arm) is not PDJointPosController or type(grip) is not PDJointPosMimicController:
+            return None
+        a, g = arm.config, grip.config
+        if a.normalize_action or a.use_delta or a.interpolate or g.use_delta or g.interpolate:
+            return None
+        return cls(arm, grip)
+
+    def set(self, q: np.ndarray, gripper: float) -> None:
+        """Drive targets of the arm (``(1, dof)`` rad) and the gripper command (+1 open, -1 closed)."""
+        q32 = np.ascontiguousarray(q, dtype=np.float32).reshape(1, -1)
+        if np.isnan(q32).any():
+            raise ValueError(f"arm targets must not be NaN, got {q32[0].tolist()}")
+        for i, joint in enumerate(self._arm_joints):
+            joint.drive_target = q32[0, i : i + 1]
+        self._arm._target_qpos = torch.from_numpy(q32)
+        want = self._grip_targets.get(gripper)
+        if want is None or any(float(j.drive_target[0]) != w for j, w in zip(self._grip_joints, want)):
+            self._grip.set_action(torch.tensor([[gripper]], dtype=torch.float32))
+            self._grip_targets[gripper] = np.array([float(j.drive_target[0]) for j in self._grip_joints])
+
+
 def drive(executor: LockstepExecutor, programs: Sequence[Program | None]) -> list:
     """Run one primitive program per env (None: the env idles) in lockstep until all have returned.
 
@@ -293,4 +350,4 @@ def drive(executor: LockstepExecutor, programs: Sequence[Program | None]) -> lis
     return results
 
 
-__all__ = ["CONTROL_MODE", "LockstepExecutor", "Motion", "PaddedTrajectories", "Program", "drive", "pad_trajectories"]
+__all__ = ["CONTROL_MODE", "DirectDrives", "LockstepExecutor", "Motion", "PaddedTrajectories", "Program", "drive", "pad_trajectories"]

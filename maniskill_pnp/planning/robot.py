@@ -7,6 +7,7 @@ the planner and the simulator agree on one model of the arm.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 import xml.etree.ElementTree as ET
 
@@ -90,3 +91,63 @@ def urdf_joint_limits(urdf: Path, joint_names: list[str]) -> tuple[np.ndarray, n
         raise ValueError(f"{urdf} has no position limits for joints {missing}")
     lo, hi = zip(*(limits[n] for n in joint_names))
     return np.array(lo), np.array(hi)
+
+
+@lru_cache(maxsize=8)
+def urdf_reach(urdf: Path, link: str | None = None) -> float:
+    """A radius about the root link's origin that holds every collision shape of the robot in every configuration
+    (m); with ``link``, the radius that holds that link's frame origin.
+
+    By the triangle inequality along the kinematic chain: the lengths of the joint origins' translations from the
+    root, each prismatic joint's largest travel, and the farthest point of the link's collision geometry from its
+    frame (meshes loaded with trimesh). No configuration of the arm puts any part of it farther away.
+    """
+    import trimesh
+
+    urdf = Path(urdf)
+    root = ET.parse(urdf).getroot()
+    parent_joint = {}
+    for joint in root.iter("joint"):
+        origin = joint.find("origin")
+        xyz = np.array([float(v) for v in origin.attrib.get("xyz", "0 0 0").split()]) if origin is not None else np.zeros(3)
+        travel = 0.0
+        if joint.attrib.get("type") == "prismatic":
+            limit = joint.find("limit")
+            travel = max(abs(float(limit.attrib["lower"])), abs(float(limit.attrib["upper"])))
+        parent_joint[joint.find("child").attrib["link"]] = (joint.find("parent").attrib["link"], float(np.linalg.norm(xyz)) + travel)
+
+    def chain(name: str) -> float:
+        length = 0.0
+        while name in parent_joint:
+            name, step = parent_joint[name]
+            length += step
+        return length
+
+    def geometry_radius(link) -> float:
+        radius = 0.0
+        for collision in link.findall("collision"):
+            origin = collision.find("origin")
+            offset = np.array([float(v) for v in origin.attrib.get("xyz", "0 0 0").split()]) if origin is not None else np.zeros(3)
+            geom = collision.find("geometry")[0]
+            if geom.tag == "box":
+                extent = float(np.linalg.norm([float(v) for v in geom.attrib["size"].split()])) / 2
+            elif geom.tag == "sphere":
+                extent = float(geom.attrib["radius"])
+            elif geom.tag in ("cylinder", "capsule"):
+                r, h = float(geom.attrib["radius"]), float(geom.attrib["length"]) / 2
+                extent = float(np.hypot(r, h)) + (r if geom.tag == "capsule" else 0.0)
+            elif geom.tag == "mesh":
+                mesh = trimesh.load(urdf.parent / geom.attrib["filename"], force="mesh")
+                scale = np.array([float(v) for v in geom.attrib.get("scale", "1 1 1").split()])
+                extent = float(np.linalg.norm(np.asarray(mesh.vertices) * scale, axis=1).max())
+            else:
+                raise ValueError(f"{urdf}: unsupported collision geometry {geom.tag!r}")
+            radius = max(radius, float(np.linalg.norm(offset)) + extent)
+        return radius
+
+    links = {l.attrib["name"]: l for l in root.iter("link")}
+    if link is not None:
+        if link not in links:
+            raise ValueError(f"{urdf} has no link {link!r}")
+        return chain(link)
+    return max(chain(name) + geometry_radius(l) for name, l in links.items())
