@@ -221,6 +221,25 @@ def test_time_parameterization_falls_back_to_constant_speed_when_toppra_fails():
     assert len(qs) == int(np.ceil(0.3 / 0.05)) + int(np.ceil(0.6 / 0.05))  # the fastest joint at full speed throughout
 
 
+def test_a_straight_joint_segment_takes_toppras_profile_in_closed_form(cube_env):
+    from maniskill_pnp.planning.trajectory import straight_segment
+
+    prims = _prims(cube_env)
+    arm, toppra = prims.arm, prims.world.mplib_planner
+    rng = np.random.default_rng(0)
+    for _ in range(6):  # long (cruising) and short (triangular) moves between random configurations
+        q0 = rng.uniform(arm.lower, arm.upper)
+        q1 = q0 + (q0 - rng.uniform(arm.lower, arm.upper)) * rng.choice([0.05, 0.6])
+        q1 = arm.clip(q1)
+        fast = time_parameterize(np.stack([q0, q1]), 0.05, arm.max_velocity, arm.max_acceleration, toppra)
+        slow = time_parameterize(np.stack([q0, (q0 + q1) / 2, q1]), 0.05, arm.max_velocity, arm.max_acceleration, toppra)
+        assert len(fast) == len(slow) and np.abs(fast - slow).max() < 2e-4
+        np.testing.assert_array_equal(fast[-1], q1)
+    assert straight_segment(q0, q0 + 1e-8, 0.05, 1.5, 2.0).shape == (1, arm.arm_joints)  # no motion: the end
+    with pytest.raises(ValueError, match="must be > 0"):
+        straight_segment(q0, q1, 0.05, 0.0, 2.0)
+
+
 def test_a_free_motion_starting_against_a_movable_object_moves_away_from_it(cube_env):
     """A failed lift or retract can leave the fingers touching an object; the next free-space motion (e.g. the way
     home) must not fail on its start configuration: the objects the arm touches at the start are no obstacles."""

@@ -131,7 +131,8 @@ class CollisionWorld:
         body = entity.find_component_by_type(sapien.physx.PhysxRigidBaseComponent)
         if body is None:
             return
-        actor_pose = _pose(actor.pose.raw_pose[env_idx].cpu().numpy())
+        # On the CPU the entity's own pose is the one ManiSkill's tensor copies (float32 both), read without tensors.
+        actor_pose = _pose(actor.pose.raw_pose[env_idx].cpu().numpy()) if actor.scene.gpu_sim_enabled else entity.pose
         for i, shape in enumerate(body.collision_shapes):
             world = actor_pose * shape.local_pose
             geometry = self._geometry(name, i, shape)
