@@ -172,3 +172,62 @@ def test_a_grasp_that_carries_two_objects_places_two():
         assert u.clutter.status(0) == ["bin", "bin"]
     finally:
         e.close()
+
+
+def _obs_with_the_robot_drawn(base) -> dict:
+    """The observation of the current state with the robot always in the sensor render."""
+    base.include_camera_data = True  # raw camera data always show the robot
+    try:
+        obs = base.get_obs()
+    finally:
+        base.include_camera_data = False
+    return obs
+
+
+def test_the_robot_at_home_is_left_out_of_the_render_and_the_heightmaps_are_the_same(env):
+    """Out of every camera's view volume (at home) the robot is not drawn for the sensors, and the heightmaps are
+    bit-for-bit those of a render that draws it; above the workspace it is drawn."""
+    base = env.unwrapped
+    env.reset(seed=4)
+    bodies = base._robot_render_bodies
+    boxes = np.array([b.get_global_aabb_fast() for b in bodies])
+    assert len(bodies) >= 10 and base._view_volumes.clear_of(boxes[:, 0], boxes[:, 1])
+    seen = []
+    with base._robot_left_out_of_view():
+        seen = [b.visibility for b in bodies]
+    assert seen == [0.0] * len(bodies) and all(b.visibility == 1.0 for b in bodies)
+    obs, drawn = base.get_obs(), _obs_with_the_robot_drawn(base)
+    for key in ("color_heightmap", "depth_heightmap"):
+        assert torch.equal(obs[key], drawn[key]), key
+    # The arm over the workspace: inside the top camera's view, drawn.
+    q = base.agent.robot.get_qpos().clone()
+    q[0, :7] = torch.tensor([0.0, 0.6, 0.0, -1.6, 0.0, 2.2, 0.785])  # facing the table, the hand over the workspace
+    base.agent.robot.set_qpos(q)
+    base.scene.step()  # the links' poses follow the joints at a physics step
+    base.scene.update_render(update_sensors=True, update_human_render_cameras=False)
+    boxes = np.array([b.get_global_aabb_fast() for b in bodies])
+    assert not base._view_volumes.clear_of(boxes[:, 0], boxes[:, 1])
+    with base._robot_left_out_of_view():
+        assert all(b.visibility == 1.0 for b in bodies)
+    obs, drawn = base.get_obs(), _obs_with_the_robot_drawn(base)
+    assert torch.equal(obs["depth_heightmap"], drawn["depth_heightmap"])
+    env.reset(seed=4)
+
+
+def test_view_volumes_separate_boxes_only_outside_every_camera():
+    from maniskill_pnp.tasks.view_volume import ViewVolumes
+
+    spec = WorkspaceSpec()
+    views = ViewVolumes(spec)
+    b = spec.bounds
+    centre = b.mean(axis=1)
+    assert not views.clear_of(centre - 0.01, centre + 0.01)  # in the workspace
+    eye = np.asarray(spec.cameras[1].eye)
+    assert not views.clear_of(eye - 0.01, eye + 0.01)  # at a camera's eye
+    far = centre + [0.0, 0.0, -1.0]  # under the table
+    assert views.clear_of(far - 0.05, far + 0.05)
+    assert not views.clear_of(np.stack([far - 0.05, centre]), np.stack([far + 0.05, centre + 0.01]))  # one box inside
+    with pytest.raises(ValueError, match="must both be"):
+        views.clear_of(np.zeros((2, 3)), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="margin"):
+        ViewVolumes(spec, margin=-1.0)
