@@ -310,3 +310,30 @@ def test_tiny_training_run_with_the_equivariant_backbone(tmp_path):
     with torch.no_grad():
         values, action, mask = actor(color, depth)
     assert values.shape == (1, 3 * 16 * 32 * 32) and mask[0, action[0]]
+
+
+def test_without_gradients_each_filter_is_expanded_once_per_weight_update(monkeypatch):
+    """Acting reuses the expanded filters until the weights change; with gradients every pass expands (and
+    backpropagates through) them anew."""
+    from maniskill_pnp.agents.pixel import equivariant
+
+    calls = []
+    real = equivariant.enn.R2Conv.expand_parameters
+    monkeypatch.setattr(equivariant.enn.R2Conv, "expand_parameters", lambda self: calls.append(self) or real(self))
+    torch.manual_seed(3)
+    net = EquivariantPixelQNetwork(num_rotations=R).eval()
+    convs = sum(isinstance(m, equivariant._SteerableConv) for m in net.modules())
+    x = heightmaps(1, 2)
+    with torch.inference_mode():
+        first = net(x)
+        torch.testing.assert_close(net(x), first)
+    assert len(calls) == convs
+    with torch.no_grad():
+        net.head.weights.mul_(0.5)  # an in-place update: a new version of the same tensor
+        changed = net(x)
+    assert len(calls) == 2 * convs and not torch.allclose(changed, first)
+    net.train()
+    net(x).sum().backward()
+    assert len(calls) == 3 * convs and net.head.weights.grad is not None
+    copied = pickle.loads(pickle.dumps(net.eval()))
+    assert all(getattr(m, "_expanded", None) is None for m in copied.modules())

@@ -89,8 +89,12 @@ class _SteerableConv(enn.R2Conv):
 
     ``R2Conv`` caches the expanded filter as a buffer when switched to eval mode; a cached filter would ignore weights
     swapped in later (the DQN loss's target parameters, ``load_state_dict`` or a collector's weight update after
-    ``.eval()``). The expansion costs a small fraction of the convolution itself.
+    ``.eval()``). Without gradients (acting, the DQN targets) the expansion is reused while the weight and bias are
+    the same tensors at the same version (``Tensor._version`` counts in-place updates: optimizer steps,
+    ``load_state_dict``, weight syncs), so acting expands each filter once per weight update, not per decision.
     """
+
+    _expanded: tuple | None = None
 
     def __init__(self, *args, **kwargs):
         with warnings.catch_warnings():  # e2cnn 0.2.3 indexes its basis masks with uint8 tensors
@@ -105,10 +109,28 @@ class _SteerableConv(enn.R2Conv):
 
     def forward(self, input: enn.GeometricTensor) -> enn.GeometricTensor:
         assert input.type == self.in_type
-        weight, bias = self.expand_parameters()
+        weight, bias = self._expansion()
         out = F.conv2d(input.tensor, weight, bias, stride=self.stride, padding=self.padding, dilation=self.dilation,
                        groups=self.groups)
         return enn.GeometricTensor(out, self.out_type)
+
+
+    def __getstate__(self):
+        state = super().__getstate__()
+        state.pop("_expanded", None)  # a cache, not state: copies and worker processes expand their own
+        return state
+
+    def _expansion(self) -> tuple[torch.Tensor, torch.Tensor | None]:
+        if torch.is_grad_enabled():
+            self._expanded = None
+            return self.expand_parameters()
+        key = (self.weights, self.weights._version, self.bias, None if self.bias is None else self.bias._version,
+               torch.is_inference_mode_enabled())
+        cached = self._expanded
+        if cached is None or len(cached[0]) != len(key) or any(a is not b if isinstance(a, torch.Tensor) else a != b
+                                                                 for a, b in zip(cached[0], key)):
+            cached = self._expanded = (key, self.expand_parameters())
+        return cached[1]
 
 
 class _BlocksExpansion(BlocksBasisExpansion):
