@@ -381,3 +381,35 @@ def test_obstacles_out_of_the_arms_reach_stay_out_of_the_checks_but_in_the_finge
     world.attach_box(np.array([0.2, 0.2, 0.2]), np.array([0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0]))
     assert "cube#0" in world._world.get_normal_object_names()
     world.detach()
+
+
+def test_segment_checks_answer_as_a_check_of_every_configuration(cube_env):
+    """Stretches certified clear of the scene skip its test; the answers are those of is_valid at every configuration,
+    at both margins, with and without a held object, and some stretches are certified."""
+    from maniskill_pnp.planning.collision import bisection_order
+
+    prims = _prims(cube_env)
+    world = prims.world
+    rng = np.random.default_rng(1)
+    certified = []
+    clear = world._sweep.clear
+    world._sweep.clear = lambda *a: certified.append(clear(*a)) or certified[-1]
+    answers = []
+    try:
+        for margin in (0.0, 0.015):
+            for held in (False, True):
+                world.sync_scene(cube_env.unwrapped.scene, margin=margin)
+                if held:
+                    world.attach_box(np.array([0.03, 0.02, 0.04]), np.array([0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0]))
+                for k in range(12):
+                    a = prims.home if k % 2 else rng.uniform(world.arm.lower, world.arm.upper)
+                    b = world.arm.clip(prims.home + rng.normal(0.0, 0.6, world.arm.arm_joints))
+                    n = max(1, int(np.ceil(np.max(np.abs(b - a)) / 0.005)))
+                    every = all(world.is_valid(a + (b - a) * (i / n)) for i in bisection_order(n))
+                    answers.append((world.segment_valid(a, b), every))
+                world.detach()
+    finally:
+        world._sweep.clear = clear
+    assert all(fast == every for fast, every in answers), answers
+    assert any(v for v, _ in answers) and not all(v for v, _ in answers)
+    assert any(certified) and not all(certified)

@@ -93,61 +93,104 @@ def urdf_joint_limits(urdf: Path, joint_names: list[str]) -> tuple[np.ndarray, n
     return np.array(lo), np.array(hi)
 
 
-@lru_cache(maxsize=8)
-def urdf_reach(urdf: Path, link: str | None = None) -> float:
-    """A radius about the root link's origin that holds every collision shape of the robot in every configuration
-    (m); with ``link``, the radius that holds that link's frame origin.
+@dataclass(frozen=True)
+class LinkBound:
+    """A ball that holds a link's collision geometry, and how far joint motions can move it.
 
-    By the triangle inequality along the kinematic chain: the lengths of the joint origins' translations from the
-    root, each prismatic joint's largest travel, and the farthest point of the link's collision geometry from its
-    frame (meshes loaded with trimesh). No configuration of the arm puts any part of it farther away.
+    Attributes:
+        center: The ball's centre in the link's frame (m).
+        radius: Its radius (m).
+        lever: Per joint name of the chain from the root to the link: a bound on the distance from that joint's origin
+            to any point of the link in any configuration (m): the joint origins' offsets in between, the largest
+            travel of prismatic joints in between, and the ball. A rotation of that joint by ``d`` rad moves no point
+            of the link farther than ``lever * |d|``.
+        depth: The distance bound from the root link's origin to the link's frame origin (m).
     """
+
+    center: np.ndarray
+    radius: float
+    lever: dict[str, float]
+    depth: float
+
+
+@lru_cache(maxsize=8)
+def urdf_link_bounds(urdf: Path) -> dict[str, LinkBound]:
+    """A :class:`LinkBound` for every link of ``urdf`` (links without collision geometry: a zero ball at the frame
+    origin), from its collision geometry (meshes loaded with trimesh) and the kinematic chain."""
     import trimesh
+    from scipy.spatial.transform import Rotation
 
     urdf = Path(urdf)
     root = ET.parse(urdf).getroot()
+
+    def origin_of(element) -> tuple[np.ndarray, np.ndarray]:
+        origin = element.find("origin")
+        attrib = {} if origin is None else origin.attrib
+        xyz = np.array([float(v) for v in attrib.get("xyz", "0 0 0").split()])
+        rpy = [float(v) for v in attrib.get("rpy", "0 0 0").split()]
+        return xyz, Rotation.from_euler("xyz", rpy).as_matrix()
+
     parent_joint = {}
     for joint in root.iter("joint"):
-        origin = joint.find("origin")
-        xyz = np.array([float(v) for v in origin.attrib.get("xyz", "0 0 0").split()]) if origin is not None else np.zeros(3)
+        xyz, _ = origin_of(joint)
         travel = 0.0
         if joint.attrib.get("type") == "prismatic":
             limit = joint.find("limit")
             travel = max(abs(float(limit.attrib["lower"])), abs(float(limit.attrib["upper"])))
-        parent_joint[joint.find("child").attrib["link"]] = (joint.find("parent").attrib["link"], float(np.linalg.norm(xyz)) + travel)
+        parent_joint[joint.find("child").attrib["link"]] = (joint.attrib["name"], joint.find("parent").attrib["link"],
+                                                            float(np.linalg.norm(xyz)), travel)
 
-    def chain(name: str) -> float:
-        length = 0.0
-        while name in parent_joint:
-            name, step = parent_joint[name]
-            length += step
-        return length
-
-    def geometry_radius(link) -> float:
-        radius = 0.0
+    def points(link) -> np.ndarray:
+        out = []
         for collision in link.findall("collision"):
-            origin = collision.find("origin")
-            offset = np.array([float(v) for v in origin.attrib.get("xyz", "0 0 0").split()]) if origin is not None else np.zeros(3)
+            xyz, rot = origin_of(collision)
             geom = collision.find("geometry")[0]
             if geom.tag == "box":
-                extent = float(np.linalg.norm([float(v) for v in geom.attrib["size"].split()])) / 2
+                half = np.array([float(v) for v in geom.attrib["size"].split()]) / 2
+                local = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
             elif geom.tag == "sphere":
-                extent = float(geom.attrib["radius"])
+                r = float(geom.attrib["radius"])
+                local = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * r  # its cube
             elif geom.tag in ("cylinder", "capsule"):
-                r, h = float(geom.attrib["radius"]), float(geom.attrib["length"]) / 2
-                extent = float(np.hypot(r, h)) + (r if geom.tag == "capsule" else 0.0)
+                r, h = float(geom.attrib["radius"]), float(geom.attrib["length"]) / 2 + (float(geom.attrib["radius"]) if geom.tag == "capsule" else 0.0)
+                local = np.array([[x, y, z] for x in (-r, r) for y in (-r, r) for z in (-h, h)])
             elif geom.tag == "mesh":
                 mesh = trimesh.load(urdf.parent / geom.attrib["filename"], force="mesh")
                 scale = np.array([float(v) for v in geom.attrib.get("scale", "1 1 1").split()])
-                extent = float(np.linalg.norm(np.asarray(mesh.vertices) * scale, axis=1).max())
+                local = np.asarray(mesh.vertices, dtype=np.float64) * scale
             else:
                 raise ValueError(f"{urdf}: unsupported collision geometry {geom.tag!r}")
-            radius = max(radius, float(np.linalg.norm(offset)) + extent)
-        return radius
+            out.append(local @ rot.T + xyz)
+        return np.concatenate(out) if out else np.zeros((1, 3))
 
-    links = {l.attrib["name"]: l for l in root.iter("link")}
+    bounds = {}
+    for link in root.iter("link"):
+        name = link.attrib["name"]
+        pts = points(link)
+        center = (pts.min(0) + pts.max(0)) / 2
+        radius = float(np.linalg.norm(pts - center, axis=1).max()) if link.findall("collision") else 0.0
+        reach = float(np.linalg.norm(center)) + radius
+        lever, length, node = {}, 0.0, name
+        while node in parent_joint:  # walk to the root: each joint's lever is what lies beyond its origin
+            joint, node, offset, travel = parent_joint[node]
+            length += travel
+            lever[joint] = length + reach
+            length += offset
+        bounds[name] = LinkBound(center, radius, lever, length)
+    return bounds
+
+
+def urdf_reach(urdf: Path, link: str | None = None) -> float:
+    """A radius about the root link's origin that holds every collision shape of the robot in every configuration
+    (m); with ``link``, the radius that holds that link's frame origin.
+
+    By the triangle inequality along the kinematic chain (:func:`urdf_link_bounds`): the lengths of the joint origins'
+    translations from the root, each prismatic joint's largest travel, and the farthest point of the link's collision
+    geometry from its frame. No configuration of the arm puts any part of it farther away.
+    """
+    bounds = urdf_link_bounds(Path(urdf))
     if link is not None:
-        if link not in links:
+        if link not in bounds:
             raise ValueError(f"{urdf} has no link {link!r}")
-        return chain(link)
-    return max(chain(name) + geometry_radius(l) for name, l in links.items())
+        return bounds[link].depth
+    return max(b.depth + float(np.linalg.norm(b.center)) + b.radius for b in bounds.values())
