@@ -174,9 +174,9 @@ def test_a_grasp_that_carries_two_objects_places_two():
         e.close()
 
 
-def _obs_with_the_robot_drawn(base) -> dict:
-    """The observation of the current state with the robot always in the sensor render."""
-    base.include_camera_data = True  # raw camera data always show the robot
+def _obs_with_everything_drawn(base) -> dict:
+    """The observation of the current state with every body in the sensor render."""
+    base.include_camera_data = True  # raw camera data always show everything
     try:
         obs = base.get_obs()
     finally:
@@ -184,34 +184,42 @@ def _obs_with_the_robot_drawn(base) -> dict:
     return obs
 
 
-def test_the_robot_at_home_is_left_out_of_the_render_and_the_heightmaps_are_the_same(env):
-    """Out of every camera's view volume (at home) the robot is not drawn for the sensors, and the heightmaps are
-    bit-for-bit those of a render that draws it; above the workspace it is drawn."""
+def _hidden_names(base) -> set[str]:
+    names = set()
+    with base._unseen_bodies_hidden():
+        names = {b.entity.name for b in base._render_bodies if b.visibility == 0.0}
+    assert all(b.visibility == 1.0 for b in base._render_bodies)  # drawn again after the render
+    return names
+
+
+@pytest.mark.parametrize("size", [64, None])  # None: the task's default heightmap size
+def test_bodies_out_of_every_view_are_left_out_of_the_render_and_the_heightmaps_are_the_same(size):
+    """The robot at home, the parked pool objects and the floor are not drawn for the sensors, and the heightmaps are
+    bit-for-bit those of a render that draws everything; an arm over the workspace is drawn."""
+    env = gym.make("ClutterGraspSlide-v1", **({} if size is None else dict(workspace=WorkspaceSpec(heightmap_size=size))), **CPU)
     base = env.unwrapped
-    env.reset(seed=4)
-    bodies = base._robot_render_bodies
-    boxes = np.array([b.get_global_aabb_fast() for b in bodies])
-    assert len(bodies) >= 10 and base._view_volumes.clear_of(boxes[:, 0], boxes[:, 1])
-    seen = []
-    with base._robot_left_out_of_view():
-        seen = [b.visibility for b in bodies]
-    assert seen == [0.0] * len(bodies) and all(b.visibility == 1.0 for b in bodies)
-    obs, drawn = base.get_obs(), _obs_with_the_robot_drawn(base)
-    for key in ("color_heightmap", "depth_heightmap"):
-        assert torch.equal(obs[key], drawn[key]), key
+    for seed in (4, 5):
+        env.reset(seed=seed)
+        hidden = _hidden_names(base)
+        links = {b.entity.name for b in base._render_bodies if b.entity.name.startswith("panda_")}
+        active = {f"scene-0_{name}" for name in base.clutter.active[0]}
+        on_table = {f"scene-0_{name}" for name, where in zip(base.clutter.active[0], base.clutter.status(0)) if where == "workspace"}
+        parked = {b.entity.name for b in base._render_bodies if b.entity.name.startswith("scene-0_obj_")} - active
+        assert links <= hidden and parked <= hidden and "scene-0_ground" in hidden, hidden
+        assert on_table and not (on_table & hidden) and "scene-0_table-workspace" not in hidden
+        obs, drawn = base.get_obs(), _obs_with_everything_drawn(base)
+        for key in ("color_heightmap", "depth_heightmap"):
+            assert torch.equal(obs[key], drawn[key]), key
     # The arm over the workspace: inside the top camera's view, drawn.
     q = base.agent.robot.get_qpos().clone()
     q[0, :7] = torch.tensor([0.0, 0.6, 0.0, -1.6, 0.0, 2.2, 0.785])  # facing the table, the hand over the workspace
     base.agent.robot.set_qpos(q)
     base.scene.step()  # the links' poses follow the joints at a physics step
     base.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-    boxes = np.array([b.get_global_aabb_fast() for b in bodies])
-    assert not base._view_volumes.clear_of(boxes[:, 0], boxes[:, 1])
-    with base._robot_left_out_of_view():
-        assert all(b.visibility == 1.0 for b in bodies)
-    obs, drawn = base.get_obs(), _obs_with_the_robot_drawn(base)
+    assert "panda_hand" not in _hidden_names(base)
+    obs, drawn = base.get_obs(), _obs_with_everything_drawn(base)
     assert torch.equal(obs["depth_heightmap"], drawn["depth_heightmap"])
-    env.reset(seed=4)
+    env.close()
 
 
 def test_view_volumes_separate_boxes_only_outside_every_camera():

@@ -535,7 +535,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     def get_obs(self, info: dict | None = None, unflattened: bool = False):
         t0 = time.perf_counter()
         self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-        with self._robot_left_out_of_view():
+        with self._unseen_bodies_hidden():
             self.capture_sensor_data()
             data = {
                 name: self.scene.sensors[name].get_obs(rgb=True, depth=True, position=False, segmentation=False)
@@ -556,35 +556,34 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         return dict(render=self._t_render, heightmap=self._t_heightmap)
 
     @contextmanager
-    def _robot_left_out_of_view(self):
-        """Leave the robot out of the sensor render while its bounding boxes lie outside every camera's view volume of
-        the workspace (:class:`~maniskill_pnp.tasks.view_volume.ViewVolumes`): the heightmaps are then the same bit for
-        bit, and lavapipe renders the two cameras in about half the time. Raw camera data (``include_camera_data``)
-        and GPU-batched renders always show the robot."""
+    def _unseen_bodies_hidden(self):
+        """Leave out of the sensor render every body whose bounding box lies outside every camera's view volume of the
+        workspace (:class:`~maniskill_pnp.tasks.view_volume.ViewVolumes`): the robot at home, the parked pool objects,
+        the floor. The heightmaps are then the same bit for bit, and lavapipe renders the two cameras in about a third
+        of the time. Raw camera data (``include_camera_data``) and GPU-batched renders show everything."""
         if self.include_camera_data or self.gpu_sim_enabled:
             yield
             return
-        bodies = self._robot_render_bodies
-        boxes = np.array([b.get_global_aabb_fast() for b in bodies])  # conservative: the local box, moved
-        if not self._view_volumes.clear_of(boxes[:, 0], boxes[:, 1]):
-            yield
-            return
-        for b in bodies:
+        bodies = self._render_bodies
+        boxes = np.array([b.get_global_aabb_fast() for b in bodies])  # conservative: each local box, moved
+        unseen = [b for b, out in zip(bodies, self._view_volumes.outside(boxes[:, 0], boxes[:, 1])) if out]
+        for b in unseen:
             b.visibility = 0.0
         try:
             yield
         finally:
-            for b in bodies:
+            for b in unseen:
                 b.visibility = 1.0
 
     @property
-    def _robot_render_bodies(self) -> list:
-        if getattr(self, "_render_bodies_of", None) is not self.agent.robot:  # a reconfiguration builds a new robot
-            self._render_bodies = [rb for link in self.agent.robot.get_links() for obj in link._objs
-                                   for rb in [obj.entity.find_component_by_type(sapien.render.RenderBodyComponent)]
-                                   if rb is not None]
-            self._render_bodies_of = self.agent.robot
-        return self._render_bodies
+    def _render_bodies(self) -> list:
+        """The render bodies of the (one) sub-scene, found once per scene (a reconfiguration builds a new one)."""
+        scene = self.scene.sub_scenes[0]
+        if getattr(self, "_render_bodies_of", None) is not scene:
+            self._render_bodies_list = [rb for e in scene.entities
+                                        for rb in [e.find_component_by_type(sapien.render.RenderBodyComponent)] if rb is not None]
+            self._render_bodies_of = scene
+        return self._render_bodies_list
 
     def _env_info(self, env: int) -> dict:
         status = self.clutter.status(env)
