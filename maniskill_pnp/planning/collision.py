@@ -343,12 +343,12 @@ class _SweptBalls:
         mid = (qa + qb) / 2
         half = np.abs(qb - qa) / 2
         self._model.compute_forward_kinematics(np.concatenate([mid, fingers]))
-        poses = [self._model.get_link_pose(i) for i in self._index]
-        centers = np.array([_rotate(p[3:], c) + p[:3] for p, c in zip(poses, self._center)])
+        poses = np.array([self._model.get_link_pose(i) for i in self._index])
+        centers = _rotate(poses[:, 3:], self._center) + poses[:, :3]
         radii = self._radius + self._lever @ half
         if self._held is not None:
-            tcp = self._model.get_link_pose(self._tcp)
-            centers = np.vstack([centers, _rotate(tcp[3:], self._held[0]) + tcp[:3]])
+            tcp = np.asarray(self._model.get_link_pose(self._tcp))[None]
+            centers = np.vstack([centers, _rotate(tcp[:, 3:], self._held[0][None]) + tcp[:, :3]])
             lever = self._tcp_lever + np.linalg.norm(self._held[0]) + self._held[1]
             radii = np.append(radii, self._held[1] + lever @ half)
         # distance from each ball's centre to each box (0 inside it)
@@ -362,9 +362,10 @@ def _collision_links(planner) -> set[str]:
 
 
 def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``v`` rotated by the unit quaternion ``q`` (w, x, y, z)."""
-    w, u = q[0], q[1:]
-    return v + 2.0 * np.cross(u, np.cross(u, v) + w * v)
+    """Rows of ``v`` (N, 3) rotated by the rows of the unit quaternions ``q`` (N, 4: w, x, y, z)."""
+    w, u = q[:, :1], q[:, 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
 
 
 class _ShapeGeometry:
