@@ -559,7 +559,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     def _unseen_bodies_hidden(self):
         """Leave out of the sensor render every body whose bounding box lies outside every camera's view volume of the
         workspace (:class:`~maniskill_pnp.tasks.view_volume.ViewVolumes`): the robot at home, the parked pool objects,
-        the floor. The heightmaps are then the same bit for bit, and lavapipe renders the two cameras in about a third
+        the floor. The heightmaps are then the same bit for bit, and lavapipe renders the two cameras in a little over half
         of the time. Raw camera data (``include_camera_data``) and GPU-batched renders show everything."""
         if self.include_camera_data or self.gpu_sim_enabled:
             yield

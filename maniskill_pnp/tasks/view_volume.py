@@ -5,7 +5,7 @@ A heightmap keeps the camera points that fall inside the workspace box (its grid
 inside the convex hull of the eye and the box can appear in, or hide anything from, the heightmap. A body whose
 bounding box lies outside every camera's hull leaves the heightmap bit-for-bit as it is, drawn or not: the clutter
 tasks leave such bodies out of the sensor render (the robot at home, the parked objects, the floor), which cuts the
-render on the CPU to about a third.
+render on the CPU to a little over half (49 -> 27 ms per decision).
 
 Example:
     >>> views = ViewVolumes(workspace)
