@@ -321,7 +321,8 @@ class _SweptBalls:
         bounds = urdf_link_bounds(arm.urdf)
         joints = list(planner.user_joint_names[: arm.arm_joints])
         self._model = planner.pinocchio_model
-        links = [name for name in planner.link_name_2_idx if bounds[name].radius > 0 and name in _collision_links(planner)]
+        colliding = set(planner.robot.get_fcl_model().get_collision_link_names())
+        links = [name for name in planner.link_name_2_idx if bounds[name].radius > 0 and name in colliding]
         self._index = [planner.link_name_2_idx[name] for name in links]
         self._center = np.array([bounds[name].center for name in links])
         self._radius = np.array([bounds[name].radius for name in links])
@@ -329,7 +330,6 @@ class _SweptBalls:
         self._tcp = planner.link_name_2_idx[arm.tcp_link]
         self._tcp_lever = np.array([bounds[arm.tcp_link].lever.get(j, 0.0) for j in joints])
         self._held: tuple[np.ndarray, float] | None = None
-        self._dof = arm.arm_joints
 
     def attach(self, center: np.ndarray | None, radius: float = 0.0) -> None:
         """A held object: a ball of ``radius`` about ``center`` in the TCP frame (None: nothing held)."""
@@ -354,11 +354,6 @@ class _SweptBalls:
         # distance from each ball's centre to each box (0 inside it)
         gap = np.maximum(boxes[None, :, 0, :] - centers[:, None, :], 0.0) + np.maximum(centers[:, None, :] - boxes[None, :, 1, :], 0.0)
         return bool((np.linalg.norm(gap, axis=-1) > radii[:, None] + 1e-6).all())
-
-
-def _collision_links(planner) -> set[str]:
-    """Links of the planner's robot model that carry collision geometry."""
-    return set(planner.robot.get_fcl_model().get_collision_link_names())
 
 
 def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:

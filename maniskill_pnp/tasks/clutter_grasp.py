@@ -243,6 +243,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.action_layout = PixelActionLayout(len(self.PRIMITIVES), self.workspace.num_rotations, s, s)
         self.home_qpos = camera_clear_home()
         self._view_volumes = ViewVolumes(self.workspace)
+        self._render_bodies_of, self._render_bodies_list = None, []  # the sub-scene they were found in, and them
         self.prims: list[MotionPrimitives] | None = None
         self.settle_steps = np.zeros(n, dtype=np.int64)
         self.num_actions = np.zeros(n, dtype=np.int64)
@@ -579,7 +580,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     def _render_bodies(self) -> list:
         """The render bodies of the (one) sub-scene, found once per scene (a reconfiguration builds a new one)."""
         scene = self.scene.sub_scenes[0]
-        if getattr(self, "_render_bodies_of", None) is not scene:
+        if self._render_bodies_of is not scene:
             self._render_bodies_list = [rb for e in scene.entities
                                         for rb in [e.find_component_by_type(sapien.render.RenderBodyComponent)] if rb is not None]
             self._render_bodies_of = scene

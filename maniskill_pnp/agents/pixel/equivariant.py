@@ -114,7 +114,6 @@ class _SteerableConv(enn.R2Conv):
                        groups=self.groups)
         return enn.GeometricTensor(out, self.out_type)
 
-
     def __getstate__(self):
         state = super().__getstate__()
         state.pop("_expanded", None)  # a cache, not state: copies and worker processes expand their own
@@ -124,13 +123,11 @@ class _SteerableConv(enn.R2Conv):
         if torch.is_grad_enabled():
             self._expanded = None
             return self.expand_parameters()
-        key = (self.weights, self.weights._version, self.bias, None if self.bias is None else self.bias._version,
-               torch.is_inference_mode_enabled())
-        cached = self._expanded
-        if cached is None or len(cached[0]) != len(key) or any(a is not b if isinstance(a, torch.Tensor) else a != b
-                                                                 for a, b in zip(cached[0], key)):
-            cached = self._expanded = (key, self.expand_parameters())
-        return cached[1]
+        versions = (self.weights._version, None if self.bias is None else self.bias._version, torch.is_inference_mode_enabled())
+        cached = self._expanded  # (weights, bias, versions, expansion): the same tensors, unchanged since
+        if cached is None or cached[0] is not self.weights or cached[1] is not self.bias or cached[2] != versions:
+            cached = self._expanded = (self.weights, self.bias, versions, self.expand_parameters())
+        return cached[3]
 
 
 class _BlocksExpansion(BlocksBasisExpansion):
