@@ -121,7 +121,7 @@ def test_bad_options_name_the_option(option, tmp_path):
 def test_grasp_slide_table_ix_over_scenarios_and_grasp_only(tmp_path):
     """A tiny G&S run evaluated on two scenarios (Table IX rows), then restricted to its grasps."""
     cfg = ClutterConfig.from_preset("gs-cpu-small", heightmap_size=32, num_rotations=2, num_objects=3, steps=2,
-                                    checkpoint_interval=2, log_interval=1, out=tmp_path)
+                                    checkpoint_interval=2, log_interval=1, collector="direct", out=tmp_path)
     train(cfg)
     both = run(ClutterEvalConfig(checkpoint=cfg.run_dir, episodes=1, max_steps=2, scenarios=("2", "complicated"),
                                  out=tmp_path / "gs"))

@@ -4,6 +4,7 @@ workers, and both recipes learning from multi-worker batches (seeds per worker r
 from __future__ import annotations
 
 import json
+from functools import partial
 
 import pytest
 import torch
@@ -13,8 +14,9 @@ from maniskill_pnp.agents.pixel.config import ClutterConfig
 from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS
 from maniskill_pnp.agents.pixel.recipe import main as train_clutter
 from maniskill_pnp.agents.collection import (
-    WORKER_SEED_STRIDE, check_collection, make_collector, resolve_backend, streams, worker_seeds,
+    WORKER_SEED_STRIDE, check_collection, make_collector, resolve_backend, streams, sync_weights, worker_seeds,
 )
+from maniskill_pnp.agents.pixel.factories import make_env, make_model, make_policy, make_worker_env
 from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, load_qtable
 from maniskill_pnp.agents.tabular.recipe import main as train_conveyor
 from maniskill_pnp.bench.scale import COLLECTION_TASKS, collection_setup
@@ -37,6 +39,7 @@ def test_bad_collection_settings_name_the_problem(workers, backend, sync, messag
 
 def test_backend_and_worker_seeds():
     assert resolve_backend("auto", 1) == "direct" and resolve_backend("auto", 2) == "process"
+    assert resolve_backend("auto", 1, single="process") == "process" and resolve_backend("direct", 1, single="process") == "direct"
     assert resolve_backend("ray", 1) == "ray"
     assert worker_seeds(5, 3) == [5, 5 + WORKER_SEED_STRIDE, 5 + 2 * WORKER_SEED_STRIDE]
 
@@ -97,8 +100,56 @@ def test_clutter_recipe_with_two_workers_then_resumed_with_one(tmp_path):
     rows = (cfg.run_dir / "actions.csv").read_text().splitlines()
     assert rows[0] == ",".join(ACTION_COLUMNS) and [int(r.split(",")[0]) for r in rows[1:]] == [1, 2, 3, 4]
     resumed = train_clutter(ClutterConfig.from_json({**cfg.to_json(), "steps": 6, "workers": 1, "resume": True}))
-    assert resumed["start_step"] == 4 and resumed["steps"] == 6 and resumed["collection"]["backend"] == "direct"
+    assert resumed["start_step"] == 4 and resumed["steps"] == 6 and resumed["collection"]["backend"] == "process"
     assert len((cfg.run_dir / "actions.csv").read_text().splitlines()) == 1 + 6
+
+
+def _worker_actions(flip_after: int | None) -> list[int]:
+    """Actions of a one-worker process collector of an untrained gs-cpu-equi actor over 6 batches; with
+    ``flip_after``, the learner's weights are negated after that many batches and pushed with sync_weights after
+    batch 3 (what the workers see of learner updates that are not yet synced, and of a sync)."""
+    cfg = ClutterConfig.from_preset("gs-cpu-equi", **TINY)
+    torch.manual_seed(0)
+    env = make_env(cfg)
+    _, explore, _ = make_policy(cfg, make_model(cfg).eval(), env.action_spec)
+    env.close()
+    collector = make_collector(partial(make_worker_env, cfg), explore, seed=0, total_frames=6, workers=1, backend="process")
+    actions = []
+    try:
+        for i, batch in enumerate(collector):
+            actions.append(int(batch.get("action").reshape(-1)[0]))
+            if i + 1 == flip_after:
+                with torch.no_grad():
+                    for p in explore.parameters():
+                        p.neg_()
+            elif flip_after is not None and i + 1 == 3:
+                sync_weights(collector, explore)
+    finally:
+        collector.shutdown()
+    return actions
+
+
+def test_process_workers_act_with_the_weights_of_the_last_sync():
+    base, flipped = _worker_actions(None), _worker_actions(1)
+    assert flipped[:3] == base[:3]  # negated in the learner after batch 1: batches 2 and 3 still use the old copy
+    assert flipped[3:] != base[3:]  # synced after batch 3: batches 4 to 6 act with the negated weights
+
+
+def test_default_clutter_collection_overlaps_learning_and_repeats_from_its_seed(tmp_path):
+    """The default collector of a clutter run: one worker process, the learner updating on each batch while the
+    worker collects the next; two runs of one seed take the same actions and learn the same weights."""
+    runs = []
+    for name in ("a", "b"):
+        cfg = ClutterConfig.from_preset("gs-cpu-equi", **TINY, steps=6, learning_starts=1, checkpoint_interval=6,
+                                        out=tmp_path / name)
+        summary = train_clutter(cfg)
+        runs.append((summary, (cfg.run_dir / "actions.csv").read_text(), torch.load(cfg.run_dir / "checkpoint.pt",
+                                                                                     weights_only=False)["model"]))
+    (a, actions_a, model_a), (b, actions_b, model_b) = runs
+    assert a["collection"] == dict(backend="process", workers=1, sync=True, overlap=True, worker_seeds=[0])
+    assert a["updates"] == b["updates"] == 6 * cfg.updates_per_step  # every update ran, the last one's included
+    assert actions_a == actions_b and len(actions_a.splitlines()) == 7
+    assert model_a.keys() == model_b.keys() and all(torch.equal(model_a[k], model_b[k]) for k in model_a)
 
 
 @pytest.mark.ray

@@ -329,11 +329,15 @@ def test_without_gradients_each_filter_is_expanded_once_per_weight_update(monkey
         torch.testing.assert_close(net(x), first)
     assert len(calls) == convs
     with torch.no_grad():
-        net.head.weights.mul_(0.5)  # an in-place update: a new version of the same tensor
+        net.head.weights.mul_(0.5)  # an in-place update of the same tensor
         changed = net(x)
     assert len(calls) == 2 * convs and not torch.allclose(changed, first)
+    net.head.weights.data.mul_(2.0)  # as a worker's weight sync writes: no new version, the values of ``first``
+    with torch.no_grad():
+        torch.testing.assert_close(net(x), first)
+    assert len(calls) == 3 * convs
     net.train()
     net(x).sum().backward()
-    assert len(calls) == 3 * convs and net.head.weights.grad is not None
+    assert len(calls) == 4 * convs and net.head.weights.grad is not None
     copied = pickle.loads(pickle.dumps(net.eval()))
     assert all(getattr(m, "_expanded", None) is None for m in copied.modules())

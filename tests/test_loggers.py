@@ -48,7 +48,8 @@ def test_conveyor_run_logs_to_tensorboard(tmp_path):
 
 def test_clutter_run_logs_to_tensorboard(tmp_path):
     cfg = ClutterConfig.from_preset("cpu-small", heightmap_size=32, num_rotations=2, num_objects=2, steps=2,
-                                    checkpoint_interval=2, log_interval=1, logger="tensorboard", out=tmp_path)
+                                    checkpoint_interval=2, log_interval=1, logger="tensorboard", collector="direct",
+                                    out=tmp_path)
     summary = clutter_recipe.main(cfg)
     assert summary["steps"] == 2
     scalars = _scalars(cfg.run_dir)

@@ -15,8 +15,10 @@ Every worker builds its own env from a picklable ``make_env(seed)`` and seeds it
 ``random``) with its own seed from :func:`worker_seeds`, so workers draw different clutters and different ε-random
 actions; the recipes record the seeds in their ``train_summary.json``. With ``sync`` (the default) each batch
 holds ``frames_per_worker`` frames of every worker, stacked as rows; without it, each batch is one worker's frames
-as soon as they are ready (fresher data, less reproducible). The learner pushes its weights (and the ε of the
-exploration module, a buffer) to the workers with :func:`sync_weights` after its updates.
+as soon as they are ready (fresher data, less reproducible). The workers act with their own copy of the policy
+(TorchRL puts a process collector's policy in shared memory, which the workers read as they act); the learner copies
+its weights and buffers (the ε of the exploration module among them) into that copy with :func:`sync_weights`, so
+its updates reach the workers only then, never in the middle of a batch.
 
 A Ray run joins the cluster named by the ``RAY_ADDRESS`` environment variable (``ray.init``'s rule) or starts a
 local Ray instance; see the README's "Scaling out".
@@ -24,6 +26,7 @@ local Ray instance; see the README's "Scaling out".
 
 from __future__ import annotations
 
+import copy
 import os
 import random
 import socket
@@ -32,14 +35,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from tensordict import TensorDictBase
-from torchrl.collectors import BaseCollector, Collector
+from tensordict import TensorDict, TensorDictBase
+from torchrl.collectors import BaseCollector, Collector, MultiAsyncCollector, MultiSyncCollector
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType
 
 from maniskill_pnp.agents.run_io import MissingExtraError
 
-#: Collector backends: the three of the table above, and "auto" (direct for one worker, process for more).
+#: Collector backends: the three of the table above, and "auto" (a recipe's choice, see :func:`resolve_backend`).
 BACKENDS = ("auto", "direct", "process", "ray")
 #: Seeds of two workers differ by this much, so the episodes of one never repeat those of another.
 WORKER_SEED_STRIDE = 100_003
@@ -63,10 +66,12 @@ def check_collection(workers: int, backend: str, sync: bool = True) -> None:
                          "only the rows of a synchronous batch tell the workers apart)")
 
 
-def resolve_backend(backend: str, workers: int) -> str:
-    """The backend "auto" stands for with ``workers`` workers; any other name unchanged."""
+def resolve_backend(backend: str, workers: int, single: str = "direct") -> str:
+    """The backend "auto" stands for with ``workers`` workers: ``single`` for one (a recipe whose simulator costs more
+    than its learner passes "process", so that the two work on separate cores), "process" for more; any other name
+    unchanged."""
     if backend == "auto":
-        return "direct" if workers == 1 else "process"
+        return single if workers == 1 else "process"
     return backend
 
 
@@ -139,6 +144,7 @@ def make_collector(
         return Collector(env, policy, frames_per_batch=frames_per_worker, auto_register_policy_transforms=False,
                          **common)
     factories = [WorkerEnv(make_env, s) for s in worker_seeds(seed, workers)]
+    policy = copy.deepcopy(policy)  # the workers' copy; the learner's own tensors stay out of shared memory
     if backend == "process":
         collector = Collector(factories, policy, backend="process", sync=sync, frames_per_batch=frames_per_worker * workers,
                               cat_results="stack", auto_register_policy_transforms=False, **common)
@@ -156,9 +162,19 @@ def make_collector(
     return collector
 
 
-def sync_weights(collector: BaseCollector) -> None:
-    """Push the learner's policy weights and buffers (ε included) to the workers; nothing to do for ``direct``."""
-    if type(collector) is not Collector:
+def sync_weights(collector: BaseCollector, policy: torch.nn.Module) -> None:
+    """Copy the learner's ``policy`` weights and buffers (ε included) into the workers' copy; nothing to do for
+    ``direct``, which acts with ``policy`` itself.
+
+    Process workers act with that copy's shared memory, so the copy is all they need: a synchronous collector's
+    workers are idle between batches and read it when the next batch is asked for (TorchRL's own
+    ``update_policy_weights_`` would add a round trip of about 20 ms to tell them so). Ray workers get the copy sent.
+    """
+    if type(collector) is Collector:
+        return
+    with torch.no_grad():
+        TensorDict.from_module(collector.policy).update_(TensorDict.from_module(policy))
+    if not isinstance(collector, (MultiSyncCollector, MultiAsyncCollector)):
         collector.update_policy_weights_()
 
 

@@ -1,15 +1,15 @@
 """Training actions per wall-clock hour of clutter recipe variants, measured side by side in one run.
 
 Each variant is a preset with optional field overrides, written ``PRESET[,FIELD=VALUE...]`` (values in YAML syntax),
-e.g. ``gs-cpu-small`` against ``gs-cpu-equi,collector=process,sync=false`` (the learner updating while a worker
-process steps the simulator). Every variant trains for real (:func:`maniskill_pnp.agents.pixel.recipe.main`: env,
+e.g. ``gs-cpu-equi,collector=direct`` (the simulator in the learner's process) against ``gs-cpu-equi`` (the default:
+the learner updating while a worker process steps the simulator). Every variant trains for real (:func:`maniskill_pnp.agents.pixel.recipe.main`: env,
 ε-greedy actor, prioritized replay, ``updates_per_step`` SGD steps per action, checkpoints) for ``minutes`` of
 wall-clock time from its first action, in a scratch run folder; the variants take turns (A B A B ... with
 ``repeats``) so a drift in the machine's load touches all of them. Reported per variant: actions, updates, actions per
 hour (the median over its turns) and the ratio to the first variant's, plus the start-up time (env and network
 construction) that the rate leaves out.
 
-Run it with ``maniskill-pnp bench training-throughput --variants gs-cpu-small gs-cpu-equi,collector=process,sync=false``.
+Run it with ``maniskill-pnp bench training-throughput --variants gs-cpu-equi,collector=direct gs-cpu-equi``.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import yaml
 from maniskill_pnp.agents.run_io import require_positive
 from maniskill_pnp.bench.common import print_machine, write_report
 
-DEFAULT_VARIANTS = ("gs-cpu-small", "gs-cpu-equi,collector=process,sync=false")
+DEFAULT_VARIANTS = ("gs-cpu-equi,collector=direct", "gs-cpu-equi")
 
 
 def parse_variant(spec: str) -> tuple[str, dict]:

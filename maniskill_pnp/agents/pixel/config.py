@@ -158,10 +158,13 @@ class ClutterConfig(RunConfig):
     """Env workers collecting in parallel (processes, or Ray actors); each has its own seed, recorded in
     train_summary.json."""
     collector: str = "auto"
-    """Collector backend: "auto" (direct for one worker, process for more), "direct", "process" or "ray" (needs the
-    ray extra, ``pip install maniskill_pnp[ray]``; joins the cluster named by RAY_ADDRESS)."""
+    """Collector backend: "auto" (worker processes, one or more), "direct" (the env in the learner's process),
+    "process" or "ray" (needs the ray extra, ``pip install maniskill_pnp[ray]``; joins the cluster named by
+    RAY_ADDRESS). With synchronous process workers the learner updates on one batch while the workers collect the
+    next, with the weights of one batch earlier; a run still repeats from its seed."""
     sync: bool = True
-    """A multi-worker batch waits for every worker (False: each worker's frames as soon as they are ready)."""
+    """A batch waits for every worker (False: each worker's frames as soon as they are ready; the workers then act
+    with weights that change under them, so a run no longer repeats from its seed)."""
     checkpoint_interval: int = 50
     """Write the checkpoint atomically every this many steps (and at the end)."""
     log_interval: int = 10

@@ -89,9 +89,11 @@ class _SteerableConv(enn.R2Conv):
 
     ``R2Conv`` caches the expanded filter as a buffer when switched to eval mode; a cached filter would ignore weights
     swapped in later (the DQN loss's target parameters, ``load_state_dict`` or a collector's weight update after
-    ``.eval()``). Without gradients (acting, the DQN targets) the expansion is reused while the weight and bias are
-    the same tensors at the same version (``Tensor._version`` counts in-place updates: optimizer steps,
-    ``load_state_dict``, weight syncs), so acting expands each filter once per weight update, not per decision.
+    ``.eval()``). Without gradients (acting, the DQN targets) the expansion is reused while the weight and bias hold
+    the values it was expanded from, compared element by element with a copy (a few thousand numbers, against an
+    expansion that multiplies them by the sampled basis): neither the tensors' identity nor their version counter
+    sees a weight sync that writes into shared memory from the learner's process. So acting expands each filter once
+    per weight update, not per decision.
     """
 
     _expanded: tuple | None = None
@@ -123,11 +125,17 @@ class _SteerableConv(enn.R2Conv):
         if torch.is_grad_enabled():
             self._expanded = None
             return self.expand_parameters()
-        versions = (self.weights._version, None if self.bias is None else self.bias._version, torch.is_inference_mode_enabled())
-        cached = self._expanded  # (weights, bias, versions, expansion): the same tensors, unchanged since
-        if cached is None or cached[0] is not self.weights or cached[1] is not self.bias or cached[2] != versions:
-            cached = self._expanded = (self.weights, self.bias, versions, self.expand_parameters())
-        return cached[3]
+        params = (self.weights, self.bias)
+        cached = self._expanded  # (copies of the weight and bias, inference mode, expansion)
+        if cached is None or cached[1] != torch.is_inference_mode_enabled() or not all(
+                _same(a, b) for a, b in zip(cached[0], params)):
+            cached = self._expanded = (tuple(None if p is None else p.detach().clone() for p in params),
+                                       torch.is_inference_mode_enabled(), self.expand_parameters())
+        return cached[2]
+
+
+def _same(copy: torch.Tensor | None, param: torch.Tensor | None) -> bool:
+    return (copy is None) == (param is None) and (copy is None or torch.equal(copy, param))
 
 
 class _BlocksExpansion(BlocksBasisExpansion):

@@ -39,13 +39,14 @@ from __future__ import annotations
 import math
 import shutil
 import time
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
 import torch
 from torchrl.objectives import HardUpdate
 from tqdm import tqdm
 
-from maniskill_pnp.agents.collection import make_collector, resolve_backend, sync_weights, worker_seeds
+from maniskill_pnp.agents.collection import make_collector, resolve_backend, seed_process, sync_weights, worker_seeds
 from maniskill_pnp.agents.pixel.checkpoint import load_checkpoint, restore, write_checkpoint
 from maniskill_pnp.agents.pixel.config import ARCHITECTURE_FIELDS, ClutterConfig
 from maniskill_pnp.agents.pixel.factories import make_action_mask, make_env, make_model, make_policy, make_worker_env
@@ -61,7 +62,7 @@ def main(cfg: ClutterConfig) -> dict:
     payload = resume_payload(cfg)
     counters = dict(steps=0, episodes=0, updates=0, grasps=0, faults=0)
     counters.update(payload["counters"] if payload else {})  # a checkpoint of an older version has no "faults"
-    torch.manual_seed(cfg.seed)
+    seed_process(cfg.seed)  # torch, numpy (TorchRL's prioritized sampler draws from numpy's global RNG) and random
     run_dir = cfg.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json(run_dir / "config.json", cfg.to_json())
@@ -85,28 +86,40 @@ def main(cfg: ClutterConfig) -> dict:
     monitor = Monitor(cfg, counters, env.base_env.primitive_names)
     collector, env = start_collector(cfg, explore, env, env_seed, frames=cfg.steps - counters["steps"])
 
-    # loop: collect one action per worker, store it, update, log, checkpoint
+    # loop: collect one action per worker, store it, update, log, checkpoint; with a worker process the update on
+    # one batch runs while the workers collect the next (see Overlap)
     model.eval()  # acting uses BatchNorm's running statistics; the updates switch to train mode and back
+    overlap = Overlap(learner, enabled=overlapped(cfg))
     t0, out_of_time = time.perf_counter(), False
     for batch in collector:
+        counters["updates"] += overlap.wait()  # the model and the replay are the loop's again
         n = batch.numel()
         egreedy.step(n)
         replay.extend(pack_transition(to_transitions(batch.reshape(-1))))
         monitor.record(batch, counters)
+        if overlap.enabled:
+            sync_weights(collector, explore)  # the next batch is collected with the weights of before this batch's update
         if len(replay) >= cfg.learning_starts:
-            counters["updates"] += learner.update(replay, cfg.updates_per_step * n)
-        sync_weights(collector)  # the workers act with the new weights and ε
+            counters["updates"] += overlap.start(replay, cfg.updates_per_step * n)
+        if not overlap.enabled:
+            sync_weights(collector, explore)  # the workers act with the new weights and ε
         wall = time.perf_counter() - t0
         out_of_time = bool(cfg.max_minutes) and wall >= 60 * cfg.max_minutes
         done = out_of_time or trained_enough(cfg, counters)
         monitor.show(n, counters, egreedy.eps.item(), learner.last_loss)
-        if crossed(counters["steps"], n, cfg.log_interval) or done:
+        logs = crossed(counters["steps"], n, cfg.log_interval) or done
+        saves = crossed(counters["steps"], n, cfg.checkpoint_interval) or done
+        if logs or saves:
+            counters["updates"] += overlap.wait()
+        if logs:
             monitor.log(counters, egreedy.eps.item(), learner.last_loss, batch, wall)
-        if crossed(counters["steps"], n, cfg.checkpoint_interval) or done:
+        if saves:
             write_checkpoint(run_dir, cfg=cfg, replay=replay, counters=counters, **state)
             monitor.logger.flush()  # the logs reach the disk with every checkpoint
         if done:
             break
+    counters["updates"] += overlap.wait()
+    overlap.close()
 
     # close and summarize (the loop wrote the final checkpoint)
     monitor.close()
@@ -145,9 +158,20 @@ def crossed(step: int, n: int, interval: int) -> bool:
     return step // interval > (step - n) // interval
 
 
+def backend(cfg: ClutterConfig) -> str:
+    """The run's collector backend: "auto" is a worker process even for one worker, so that the simulator and the
+    learner work on separate cores."""
+    return resolve_backend(cfg.collector, cfg.workers, single="process")
+
+
+def overlapped(cfg: ClutterConfig) -> bool:
+    """Whether the learner updates while the workers collect: with the process backend's synchronous batches."""
+    return backend(cfg) == "process" and cfg.sync
+
+
 def collection_summary(cfg: ClutterConfig, env_seed: int) -> dict:
-    """How the run collects: backend, workers, sync and each worker's env seed (recorded in the summary)."""
-    return dict(backend=resolve_backend(cfg.collector, cfg.workers), workers=cfg.workers, sync=cfg.sync,
+    """How the run collects: backend, workers, sync, overlap and each worker's env seed (recorded in the summary)."""
+    return dict(backend=backend(cfg), workers=cfg.workers, sync=cfg.sync, overlap=overlapped(cfg),
                 worker_seeds=worker_seeds(env_seed, cfg.workers))
 
 
@@ -155,13 +179,47 @@ def start_collector(cfg: ClutterConfig, explore, env, env_seed: int, frames: int
     """The collector of ``frames`` more actions of the ε-greedy actor ``explore``, and the env the caller still has
     to close: ``env`` itself with the direct backend, else None (``env`` only gave the specs; it is closed here and
     every worker builds its own)."""
-    backend = resolve_backend(cfg.collector, cfg.workers)
-    if backend != "direct":
+    kind = backend(cfg)
+    if kind != "direct":
         env.close()
         env = None
     collector = make_collector(partial(make_worker_env, cfg), explore, seed=env_seed, total_frames=frames,
-                               workers=cfg.workers, backend=backend, sync=cfg.sync, env=env)
+                               workers=cfg.workers, backend=kind, sync=cfg.sync, env=env)
     return collector, env
+
+
+class Overlap:
+    """The learner's updates on one batch, run in a thread while the collector's workers collect the next batch.
+
+    A synchronous process collector asks its workers for the next batch only when the loop asks it for one, and
+    :func:`~maniskill_pnp.agents.collection.sync_weights` waits until the workers hold the weights; so the loop pushes
+    the weights before it starts an update (:meth:`start`) and takes the update back (:meth:`wait`) before it
+    touches the model or the replay again. Batch ``k + 1`` is then always collected with the weights and ε of after
+    batch ``k - 1``'s updates, one batch stale and the same in every run of a seed; torch runs the update outside
+    the GIL while the loop waits for the workers. Not enabled, :meth:`start` updates at once, as the direct and
+    asynchronous collectors need.
+    """
+
+    def __init__(self, learner: "Learner", enabled: bool):
+        self.learner, self.enabled = learner, enabled
+        self.pool = ThreadPoolExecutor(1, thread_name_prefix="learner") if enabled else None
+        self.pending = None
+
+    def start(self, replay, steps: int) -> int:
+        """Start ``steps`` updates; the updates done now (``steps``, or 0 when they run until :meth:`wait`)."""
+        if self.pool is None:
+            return self.learner.update(replay, steps)
+        self.pending = self.pool.submit(self.learner.update, replay, steps)
+        return 0
+
+    def wait(self) -> int:
+        """Wait for the running updates (their error raised here); how many they were."""
+        pending, self.pending = self.pending, None
+        return 0 if pending is None else pending.result()
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True)
 
 
 class Monitor:
@@ -248,5 +306,5 @@ class Learner:
         return steps
 
 
-__all__ = ["Learner", "Monitor", "collection_summary", "crossed", "main", "make_run_replay", "resume_payload",
-           "start_collector", "trained_enough"]
+__all__ = ["Learner", "Monitor", "Overlap", "backend", "collection_summary", "crossed", "main", "make_run_replay", "resume_payload",
+           "overlapped", "start_collector", "trained_enough"]

@@ -327,7 +327,7 @@ def main(cfg: ConveyorConfig) -> dict:
         if ready is not None:
             td_update(table, ready, alpha=cfg.alpha, gamma=cfg.gamma, bootstrap=bootstrap)
         egreedy.step(batch.numel())
-        sync_weights(collector)
+        sync_weights(collector, explore)
         # log: the running success rate of the episodes that ended
         tally.add(batch)
         bar.update(batch.numel())
