@@ -235,10 +235,10 @@ class CollisionWorld:
                     return True
             return False
 
+        if not (self.arm.within_limits(q0) and self.arm.within_limits(q1)):
+            return False  # the limits are a box: with both ends inside it, so is every configuration between them
         for i in bisection_order(n):
             q = q0 + (q1 - q0) * (i / n)
-            if not self.arm.within_limits(q):
-                return False
             self._set(q)
             if self._world.self_collide() if scene_free(i) else self._world.collide():
                 return False

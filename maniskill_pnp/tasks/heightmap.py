@@ -74,19 +74,19 @@ def project_heightmap(
     s = spec.heightmap_size
     dev = points.device
     bounds = torch.as_tensor(spec.bounds, dtype=torch.float32, device=dev)
-    col = torch.floor((points[..., 0] - bounds[0, 0]) / spec.pixel_size).long()
-    row = torch.floor((points[..., 1] - bounds[1, 0]) / spec.pixel_size).long()
+    col = torch.floor((points[..., 0] - bounds[0, 0]) / spec.pixel_size)
+    row = torch.floor((points[..., 1] - bounds[1, 0]) / spec.pixel_size)
     hgt = points[..., 2] - spec.table_z
     keep = valid & (col >= 0) & (col < s) & (row >= 0) & (row < s) & (hgt > -0.01) & (hgt < spec.max_height)
-    # Work on the kept points only, with one flat index over (batch, pixel).
-    bi = torch.arange(b, device=dev)[:, None].expand(b, n)[keep]
-    flat = bi * (s * s) + row[keep] * s + col[keep]
-    hk = hgt[keep].clamp(min=0.0)
+    # Work on the kept points only (found once), with one flat index over (batch, pixel).
+    kept = keep.reshape(-1).nonzero().squeeze(1)
+    flat = (kept // n) * (s * s) + row.reshape(-1)[kept].long() * s + col.reshape(-1)[kept].long()
+    hk = hgt.reshape(-1)[kept].clamp(min=0.0)
     best = torch.full((b * s * s,), -1.0, device=dev).scatter_reduce(0, flat, hk, reduce="amax", include_self=True)
     # Colour of the highest point: the points that reach their pixel's maximum write their colour (ties: any one).
     top = hk >= best[flat]
     color = torch.zeros((b * s * s, 3), device=dev)
-    color[flat[top]] = colors[keep][top].to(torch.float32)
+    color[flat[top]] = colors.reshape(b * n, -1)[kept][top].to(torch.float32)
     filled = best >= 0
     return best.clamp(min=0.0).reshape(b, s, s), color.reshape(b, s, s, 3), filled.reshape(b, s, s)
 
