@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Collection
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -88,7 +89,7 @@ class PrimitiveResult:
         placed: The object came to rest inside the place region.
         moved: Displacement (m) of the pushed object by a slide, when a target was named.
         held: Name of the object in the gripper after the primitive, if any.
-        planning_time: Seconds spent in IK, RRT-Connect and time parameterization.
+        planning_time: Seconds spent in IK, RRT-Connect, time parameterization and the collision-world syncs.
         sim_steps: Physics steps executed.
         stages: Per-stage log: (stage name, ok, detail).
     """
@@ -432,30 +433,39 @@ class MotionPrimitives:
             res.held = self.held
         return res
 
-    def _timed(self, fn, *args, **kwargs):
+    @contextmanager
+    def _planning(self):
+        """Count the block's time as planning (IK, plans, time parameterization and the collision-world syncs
+        they need), the rest of a primitive's time being its execution."""
         t0 = time.perf_counter()
         try:
-            return fn(*args, **kwargs)
+            yield
         finally:
             self._planning_time += time.perf_counter() - t0
 
+    def _timed(self, fn, *args, **kwargs):
+        with self._planning():
+            return fn(*args, **kwargs)
+
     def _move_to(self, q_goal: np.ndarray, stage: str, res: PrimitiveResult) -> None:
         """Free-space motion: plan with the clearance margin; without it only when start or goal lie inside it."""
-        self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles,
-                              margin=self.clearance)
-        plan = self._timed(self.planner.plan, self.executor.qpos(), q_goal)
-        if not plan.ok and plan.reason.startswith(("start", "goal")):
-            self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles)
-            plan = self._timed(self.planner.plan, self.executor.qpos(), q_goal)
+        with self._planning():
+            self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles,
+                                  margin=self.clearance)
+            plan = self.planner.plan(self.executor.qpos(), q_goal)
+            if not plan.ok and plan.reason.startswith(("start", "goal")):
+                self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles)
+                plan = self.planner.plan(self.executor.qpos(), q_goal)
         detail = ""
         if not plan.ok and plan.reason.startswith("start"):
             # The arm already touches movable objects (a failed lift or retract left it among them): moving away is
             # what frees it, so those objects are no obstacles for this motion.
-            touching = {other for _, other in self.world.collisions(self.executor.qpos())} & self._movable()
-            if touching:
-                self.world.sync_scene(self.env.scene, ignore=self._ignored | touching, env_idx=self.env_idx,
-                                      skip=self.non_obstacles)
-                plan = self._timed(self.planner.plan, self.executor.qpos(), q_goal)
+            with self._planning():
+                touching = {other for _, other in self.world.collisions(self.executor.qpos())} & self._movable()
+                if touching:
+                    self.world.sync_scene(self.env.scene, ignore=self._ignored | touching, env_idx=self.env_idx,
+                                          skip=self.non_obstacles)
+                    plan = self.planner.plan(self.executor.qpos(), q_goal)
                 detail = f", leaving {sorted(touching)} that the arm touched at the start"
         if not plan.ok:
             raise _StageFailed(stage, plan.reason)
@@ -481,11 +491,16 @@ class MotionPrimitives:
 
     def _sync(self, ignore: Collection[str] = ()) -> None:
         self._ignored = set(ignore) | ({self.held} if self.held else set())
-        self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles)
-        self.world.set_fingers(float(np.min(self.executor.finger_qpos())))
+        with self._planning():
+            self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles)
+            self.world.set_fingers(float(np.min(self.executor.finger_qpos())))
 
     def _attach(self, name: str) -> None:
         """Add the held object's bounding box (in the TCP frame) to the arm for collision checks."""
+        with self._planning():
+            self._attach_box(name)
+
+    def _attach_box(self, name: str) -> None:
         meshes = self.env.scene.actors[name].get_collision_meshes(to_world_frame=True)
         mesh = meshes[self.env_idx if len(meshes) > 1 else 0]
         tcp = self.kin.fk(self.executor.qpos())
