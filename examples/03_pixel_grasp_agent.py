@@ -69,8 +69,10 @@ def show(fig, name: str) -> None:
 
 
 # %%
+# collector="direct": the env in this process. `train-clutter` (and a script's `main` behind an
+# `if __name__ == "__main__":` guard) by default steps it in a worker process while the learner updates.
 cfg = ClutterConfig.from_preset("cpu-equi", num_objects=NUM_OBJECTS, steps=TRAIN_STEPS, log_interval=1,
-                                checkpoint_interval=TRAIN_STEPS, out=OUT / "runs")
+                                checkpoint_interval=TRAIN_STEPS, collector="direct", out=OUT / "runs")
 print({f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)
        if f.name in ("preset", "task", "backbone", "num_rotations", "heightmap_size", "workspace_side", "num_objects",
                      "steps", "gamma", "lr", "batch_size", "eps_start", "eps_end", "mask_empty")})
