@@ -18,7 +18,8 @@ holds ``frames_per_worker`` frames of every worker, stacked as rows; without it,
 as soon as they are ready (fresher data, less reproducible). The workers act with their own copy of the policy
 (TorchRL puts a process collector's policy in shared memory, which the workers read as they act); the learner copies
 its weights and buffers (the ε of the exploration module among them) into that copy with :func:`sync_weights`, so
-its updates reach the workers only then, never in the middle of a batch.
+its updates reach the workers only then: between two synchronous batches, while the workers wait (without ``sync``
+the workers act on while it is written).
 
 A Ray run joins the cluster named by the ``RAY_ADDRESS`` environment variable (``ray.init``'s rule) or starts a
 local Ray instance; see the README's "Scaling out".

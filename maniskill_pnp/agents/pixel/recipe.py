@@ -191,10 +191,10 @@ def start_collector(cfg: ClutterConfig, explore, env, env_seed: int, frames: int
 class Overlap:
     """The learner's updates on one batch, run in a thread while the collector's workers collect the next batch.
 
-    A synchronous process collector asks its workers for the next batch only when the loop asks it for one, and
-    :func:`~maniskill_pnp.agents.collection.sync_weights` waits until the workers hold the weights; so the loop pushes
-    the weights before it starts an update (:meth:`start`) and takes the update back (:meth:`wait`) before it
-    touches the model or the replay again. Batch ``k + 1`` is then always collected with the weights and ε of after
+    A synchronous process collector asks its workers for the next batch only when the loop asks it for one, and the
+    workers act with their own copy of the policy, which :func:`~maniskill_pnp.agents.collection.sync_weights`
+    overwrites while they wait between batches; so the loop syncs the weights before it starts an update
+    (:meth:`start`) and takes the update back (:meth:`wait`) before it touches the model or the replay again. Batch ``k + 1`` is then always collected with the weights and ε of after
     batch ``k - 1``'s updates, one batch stale and the same in every run of a seed; torch runs the update outside
     the GIL while the loop waits for the workers. Not enabled, :meth:`start` updates at once, as the direct and
     asynchronous collectors need.
