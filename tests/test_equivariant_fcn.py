@@ -335,9 +335,9 @@ def test_without_gradients_each_filter_is_expanded_once_per_weight_update(monkey
     net.head.weights.data.mul_(2.0)  # as a worker's weight sync writes: no new version, the values of ``first``
     with torch.no_grad():
         torch.testing.assert_close(net(x), first)
-    assert len(calls) == 3 * convs
+    assert len(calls) == 2 * convs + 1  # the head's filter only: the other layers' weights hold their values
     net.train()
     net(x).sum().backward()
-    assert len(calls) == 4 * convs and net.head.weights.grad is not None
+    assert len(calls) == 3 * convs + 1 and net.head.weights.grad is not None
     copied = pickle.loads(pickle.dumps(net.eval()))
     assert all(getattr(m, "_expanded", None) is None for m in copied.modules())
