@@ -206,16 +206,15 @@ def test_unreachable_target_is_a_failure_result_not_an_exception(cube_env):
     assert not res.ok and res.stage == "input" and "no_such_object" in res.reason
 
 
-class _FailingTOPP:
-    """An mplib planner stand-in whose TOPP-RA finds no parameterization, as mplib's does on some paths."""
+def test_time_parameterization_falls_back_to_constant_speed_when_toppra_fails(monkeypatch):
+    from maniskill_pnp.planning import trajectory
 
-    def TOPP(self, path, step):
+    def fails(*args):  # as TOPP-RA does on some paths
         raise RuntimeError("Fail to parameterize path")
 
-
-def test_time_parameterization_falls_back_to_constant_speed_when_toppra_fails():
+    monkeypatch.setattr(trajectory, "toppra_samples", fails)
     path = np.array([[0.0, 0.0], [0.3, -0.1], [0.3, 0.5]])
-    qs = time_parameterize(path, dt=0.05, max_velocity=1.0, max_acceleration=2.0, planner=_FailingTOPP())
+    qs = time_parameterize(path, dt=0.05, max_velocity=1.0, max_acceleration=2.0)
     steps = np.abs(np.diff(np.vstack([path[:1], qs]), axis=0)).max(axis=1)
     assert np.allclose(qs[-1], path[-1]) and steps.max() <= 1.0 * 0.05 + 1e-9
     assert len(qs) == int(np.ceil(0.3 / 0.05)) + int(np.ceil(0.6 / 0.05))  # the fastest joint at full speed throughout
@@ -225,19 +224,34 @@ def test_a_straight_joint_segment_takes_toppras_profile_in_closed_form(cube_env)
     from maniskill_pnp.planning.trajectory import straight_segment
 
     prims = _prims(cube_env)
-    arm, toppra = prims.arm, prims.world.mplib_planner
+    arm = prims.arm
     rng = np.random.default_rng(0)
     for _ in range(6):  # long (cruising) and short (triangular) moves between random configurations
         q0 = rng.uniform(arm.lower, arm.upper)
         q1 = q0 + (q0 - rng.uniform(arm.lower, arm.upper)) * rng.choice([0.05, 0.6])
         q1 = arm.clip(q1)
-        fast = time_parameterize(np.stack([q0, q1]), 0.05, arm.max_velocity, arm.max_acceleration, toppra)
-        slow = time_parameterize(np.stack([q0, (q0 + q1) / 2, q1]), 0.05, arm.max_velocity, arm.max_acceleration, toppra)
+        fast = time_parameterize(np.stack([q0, q1]), 0.05, arm.max_velocity, arm.max_acceleration)
+        slow = time_parameterize(np.stack([q0, (q0 + q1) / 2, q1]), 0.05, arm.max_velocity, arm.max_acceleration)
         assert len(fast) == len(slow) and np.abs(fast - slow).max() < 2e-4
         np.testing.assert_array_equal(fast[-1], q1)
     assert straight_segment(q0, q0 + 1e-8, 0.05, 1.5, 2.0).shape == (1, arm.arm_joints)  # no motion: the end
     with pytest.raises(ValueError, match="must be > 0"):
         straight_segment(q0, q1, 0.05, 0.0, 2.0)
+
+
+def test_toppra_samples_are_mplibs_to_the_bit(cube_env):
+    """toppra called directly (constraints built once per limits) samples the trajectory of mplib's TOPP."""
+    from maniskill_pnp.planning.trajectory import densify, toppra_samples
+
+    prims = _prims(cube_env)
+    arm, planner = prims.arm, prims.world.mplib_planner
+    planner.joint_vel_limits, planner.joint_acc_limits = np.full(7, arm.max_velocity), np.full(7, arm.max_acceleration)
+    rng = np.random.default_rng(1)
+    for scale in (0.01, 0.05, 0.2, 0.05):  # a bent path of 12 waypoints at each scale; the limits' constraints reused
+        q0 = rng.uniform(arm.lower, arm.upper) * 0.5
+        path = densify(np.vstack([q0, q0 + np.cumsum(rng.normal(0.0, scale, (11, 7)), axis=0)]))
+        _, ref, _, _, _ = planner.TOPP(path, step=0.05)
+        np.testing.assert_array_equal(toppra_samples(path, 0.05, arm.max_velocity, arm.max_acceleration), ref)
 
 
 def test_a_free_motion_starting_against_a_movable_object_moves_away_from_it(cube_env):

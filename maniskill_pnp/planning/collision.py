@@ -251,7 +251,7 @@ class CollisionWorld:
     # ------------------------------------------------------------------ kinematics (mplib's pinocchio model)
     @property
     def mplib_planner(self):
-        """The underlying ``mplib.Planner`` (its pinocchio model does IK and FK, its TOPP time-parameterizes)."""
+        """The underlying ``mplib.Planner`` (its pinocchio model does IK and FK)."""
         return self._planner
 
     def world_to_base(self, pose: np.ndarray | sapien.Pose) -> sapien.Pose:

@@ -484,7 +484,7 @@ class MotionPrimitives:
 
     def _execute(self, path: np.ndarray, stage: str, res: PrimitiveResult, detail: str, stop=None) -> None:
         traj = self._timed(
-            time_parameterize, path, self.executor.dt, self.arm.max_velocity, self.arm.max_acceleration, self.world.mplib_planner
+            time_parameterize, path, self.executor.dt, self.arm.max_velocity, self.arm.max_acceleration
         )
         err = yield Motion(traj, stop=stop)
         res.stages.append((stage, True, f"{detail}, {len(traj)} control steps, final error {err:.3f} rad"))

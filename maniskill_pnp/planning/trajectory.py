@@ -1,8 +1,13 @@
-"""Time parameterization of joint paths (TOPP-RA through mplib) sampled at the controller's rate."""
+"""Time parameterization of joint paths (TOPP-RA, the toppra library) sampled at the controller's rate."""
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
+import toppra
+from toppra import algorithm as toppra_algorithm
+from toppra import constraint as toppra_constraint
 
 
 def densify(path: np.ndarray, max_step: float = 0.05) -> np.ndarray:
@@ -21,7 +26,7 @@ def densify(path: np.ndarray, max_step: float = 0.05) -> np.ndarray:
     return np.stack(out)
 
 
-def time_parameterize(path: np.ndarray, dt: float, max_velocity: float, max_acceleration: float, planner) -> np.ndarray:
+def time_parameterize(path: np.ndarray, dt: float, max_velocity: float, max_acceleration: float) -> np.ndarray:
     """Joint positions along ``path`` at every ``dt`` seconds, time-optimal under velocity/acceleration limits.
 
     Args:
@@ -29,7 +34,6 @@ def time_parameterize(path: np.ndarray, dt: float, max_velocity: float, max_acce
         dt: Sample period (the controller period, ``1 / control_freq``).
         max_velocity: Joint speed limit (rad/s), the same for every joint.
         max_acceleration: Joint acceleration limit (rad/s²).
-        planner: The ``mplib.Planner`` whose TOPP-RA implementation is used.
 
     Returns:
         Positions (M×dof); the last row is exactly the path's end. Where TOPP-RA fails on a path, the
@@ -44,21 +48,45 @@ def time_parameterize(path: np.ndarray, dt: float, max_velocity: float, max_acce
     if len(path) < 2 or np.allclose(path[0], path[-1], atol=1e-6):
         return path[-1:].copy()
     dof = path.shape[1]
-    planner.joint_vel_limits = np.full(dof, max_velocity)
-    planner.joint_acc_limits = np.full(dof, max_acceleration)
     # TOPP-RA's spline needs distinct, strictly increasing path parameters: drop repeated waypoints.
     keep = np.concatenate([[True], np.any(np.abs(np.diff(path, axis=0)) > 1e-9, axis=1)])
     path = path[keep]
     if len(path) == 2:
         path = densify(path, max_step=float(np.max(np.abs(path[1] - path[0]))) / 2 + 1e-9)
     try:
-        _, qs, _, _, _ = planner.TOPP(path, step=dt)
+        qs = toppra_samples(path, dt, max_velocity, max_acceleration)
     except RuntimeError:  # TOPP-RA finds no feasible parameterization of some paths ("Fail to parameterize path")
         return constant_speed(path, dt, max_velocity)
     qs = np.asarray(qs, dtype=np.float64)
     if len(qs) == 0 or not np.allclose(qs[-1], path[-1], atol=1e-4):
         qs = np.concatenate([qs.reshape(-1, dof), path[-1:]])
     return qs
+
+
+def toppra_samples(path: np.ndarray, dt: float, max_velocity: float, max_acceleration: float) -> np.ndarray:
+    """Positions every ``dt`` seconds of TOPP-RA's time-optimal trajectory through the waypoints ``path`` (N×dof, N
+    >= 2, distinct), under the same velocity and acceleration limit for every joint; RuntimeError where TOPP-RA finds
+    no parameterization.
+
+    The computation of mplib's ``Planner.TOPP`` (a cubic spline over uniform path parameters, joint velocity and
+    acceleration constraints, ``ParametrizeConstAccel``, ``int(duration / dt)`` samples), so the samples are the
+    same to the bit (tested), without its velocity and acceleration samples and with the constraints built once per
+    limits.
+    """
+    path = np.asarray(path, dtype=np.float64)
+    spline = toppra.SplineInterpolator(np.linspace(0, 1, len(path)), path)
+    constraints = list(_constraints(path.shape[1], float(max_velocity), float(max_acceleration)))
+    trajectory = toppra_algorithm.TOPPRA(constraints, spline, parametrizer="ParametrizeConstAccel").compute_trajectory()
+    if trajectory is None:
+        raise RuntimeError("Fail to parameterize path")
+    return np.asarray(trajectory(np.linspace(0, trajectory.duration, int(trajectory.duration / dt))), dtype=np.float64)
+
+
+@lru_cache(maxsize=8)
+def _constraints(dof: int, max_velocity: float, max_acceleration: float) -> tuple:
+    """toppra's joint velocity and acceleration constraints (they hold the limits only, not the path)."""
+    return (toppra_constraint.JointVelocityConstraint(np.full(dof, max_velocity)),
+            toppra_constraint.JointAccelerationConstraint(np.full(dof, max_acceleration)))
 
 
 def constant_speed(path: np.ndarray, dt: float, max_velocity: float) -> np.ndarray:
