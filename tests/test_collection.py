@@ -39,7 +39,8 @@ def test_bad_collection_settings_name_the_problem(workers, backend, sync, messag
 
 def test_backend_and_worker_seeds():
     assert resolve_backend("auto", 1) == "direct" and resolve_backend("auto", 2) == "process"
-    assert resolve_backend("auto", 1, single="process") == "process" and resolve_backend("direct", 1, single="process") == "direct"
+    assert resolve_backend("auto", 1, single="process") == "process"
+    assert resolve_backend("direct", 1, single="process") == "direct"
     assert resolve_backend("ray", 1) == "ray"
     assert worker_seeds(5, 3) == [5, 5 + WORKER_SEED_STRIDE, 5 + 2 * WORKER_SEED_STRIDE]
 
@@ -113,7 +114,8 @@ def _worker_actions(flip_after: int | None) -> list[int]:
     env = make_env(cfg)
     _, explore, _ = make_policy(cfg, make_model(cfg).eval(), env.action_spec)
     env.close()
-    collector = make_collector(partial(make_worker_env, cfg), explore, seed=0, total_frames=6, workers=1, backend="process")
+    collector = make_collector(partial(make_worker_env, cfg), explore, seed=0, total_frames=6, workers=1,
+                               backend="process")
     actions = []
     try:
         for i, batch in enumerate(collector):

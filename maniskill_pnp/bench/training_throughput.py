@@ -2,8 +2,9 @@
 
 Each variant is a preset with optional field overrides, written ``PRESET[,FIELD=VALUE...]`` (values in YAML syntax),
 e.g. ``gs-cpu-equi,collector=direct`` (the simulator in the learner's process) against ``gs-cpu-equi`` (the default:
-the learner updating while a worker process steps the simulator). Every variant trains for real (:func:`maniskill_pnp.agents.pixel.recipe.main`: env,
-ε-greedy actor, prioritized replay, ``updates_per_step`` SGD steps per action, checkpoints) for ``minutes`` of
+the learner updating while a worker process steps the simulator). Every variant trains for real
+(:func:`maniskill_pnp.agents.pixel.recipe.main`: env, ε-greedy actor, prioritized replay, ``updates_per_step`` SGD
+steps per action, checkpoints) for ``minutes`` of
 wall-clock time from its first action, in a scratch run folder; the variants take turns (A B A B ... with
 ``repeats``) so a drift in the machine's load touches all of them. Reported per variant: actions, updates, actions per
 hour (the median over its turns) and the ratio to the first variant's, plus the start-up time (env and network

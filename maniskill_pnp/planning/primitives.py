@@ -454,7 +454,8 @@ class MotionPrimitives:
                                   margin=self.clearance)
             plan = self.planner.plan(self.executor.qpos(), q_goal)
             if not plan.ok and plan.reason.startswith(("start", "goal")):
-                self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx, skip=self.non_obstacles)
+                self.world.sync_scene(self.env.scene, ignore=self._ignored, env_idx=self.env_idx,
+                                      skip=self.non_obstacles)
                 plan = self.planner.plan(self.executor.qpos(), q_goal)
         detail = ""
         if not plan.ok and plan.reason.startswith("start"):
@@ -498,16 +499,12 @@ class MotionPrimitives:
     def _attach(self, name: str) -> None:
         """Add the held object's bounding box (in the TCP frame) to the arm for collision checks."""
         with self._planning():
-            self._attach_box(name)
-
-    def _attach_box(self, name: str) -> None:
-        meshes = self.env.scene.actors[name].get_collision_meshes(to_world_frame=True)
-        mesh = meshes[self.env_idx if len(meshes) > 1 else 0]
-        tcp = self.kin.fk(self.executor.qpos())
-        inv = tcp.inv().to_transformation_matrix()
-        v = np.asarray(mesh.vertices) @ inv[:3, :3].T + inv[:3, 3]
-        lo, hi = v.min(0), v.max(0)
-        self.world.attach_box((hi - lo) / 2 + 0.005, np.concatenate([(hi + lo) / 2, [1.0, 0.0, 0.0, 0.0]]))
+            meshes = self.env.scene.actors[name].get_collision_meshes(to_world_frame=True)
+            mesh = meshes[self.env_idx if len(meshes) > 1 else 0]
+            inv = self.kin.fk(self.executor.qpos()).inv().to_transformation_matrix()
+            v = np.asarray(mesh.vertices) @ inv[:3, :3].T + inv[:3, 3]
+            lo, hi = v.min(0), v.max(0)
+            self.world.attach_box((hi - lo) / 2 + 0.005, np.concatenate([(hi + lo) / 2, [1.0, 0.0, 0.0, 0.0]]))
 
     def _movable(self) -> set[str]:
         names = set()

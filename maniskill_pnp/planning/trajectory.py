@@ -57,7 +57,6 @@ def time_parameterize(path: np.ndarray, dt: float, max_velocity: float, max_acce
         qs = toppra_samples(path, dt, max_velocity, max_acceleration)
     except RuntimeError:  # TOPP-RA finds no feasible parameterization of some paths ("Fail to parameterize path")
         return constant_speed(path, dt, max_velocity)
-    qs = np.asarray(qs, dtype=np.float64)
     if len(qs) == 0 or not np.allclose(qs[-1], path[-1], atol=1e-4):
         qs = np.concatenate([qs.reshape(-1, dof), path[-1:]])
     return qs

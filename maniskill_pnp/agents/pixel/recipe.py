@@ -98,7 +98,7 @@ def main(cfg: ClutterConfig) -> dict:
         replay.extend(pack_transition(to_transitions(batch.reshape(-1))))
         monitor.record(batch, counters)
         if overlap.enabled:
-            sync_weights(collector, explore)  # the next batch is collected with the weights of before this batch's update
+            sync_weights(collector, explore)  # the next batch is collected with the weights before this update
         if len(replay) >= cfg.learning_starts:
             counters["updates"] += overlap.start(replay, cfg.updates_per_step * n)
         if not overlap.enabled:
@@ -194,10 +194,10 @@ class Overlap:
     A synchronous process collector asks its workers for the next batch only when the loop asks it for one, and the
     workers act with their own copy of the policy, which :func:`~maniskill_pnp.agents.collection.sync_weights`
     overwrites while they wait between batches; so the loop syncs the weights before it starts an update
-    (:meth:`start`) and takes the update back (:meth:`wait`) before it touches the model or the replay again. Batch ``k + 1`` is then always collected with the weights and ε of after
-    batch ``k - 1``'s updates, one batch stale and the same in every run of a seed; torch runs the update outside
-    the GIL while the loop waits for the workers. Not enabled, :meth:`start` updates at once, as the direct and
-    asynchronous collectors need.
+    (:meth:`start`) and takes the update back (:meth:`wait`) before it touches the model or the replay again. Batch
+    ``k + 1`` is then always collected with the weights and ε of after batch ``k - 1``'s updates, one batch stale and
+    the same in every run of a seed; torch runs the update outside the GIL while the loop waits for the workers. Not
+    enabled, :meth:`start` updates at once, as the direct and asynchronous collectors need.
     """
 
     def __init__(self, learner: "Learner", enabled: bool):
@@ -306,5 +306,5 @@ class Learner:
         return steps
 
 
-__all__ = ["Learner", "Monitor", "Overlap", "backend", "collection_summary", "crossed", "main", "make_run_replay", "resume_payload",
-           "overlapped", "start_collector", "trained_enough"]
+__all__ = ["Learner", "Monitor", "Overlap", "backend", "collection_summary", "crossed", "main", "make_run_replay",
+           "overlapped", "resume_payload", "start_collector", "trained_enough"]
