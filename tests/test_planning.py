@@ -427,3 +427,46 @@ def test_segment_checks_answer_as_a_check_of_every_configuration(cube_env):
     assert all(fast == every for fast, every in answers), answers
     assert any(v for v, _ in answers) and not all(v for v, _ in answers)
     assert any(certified) and not all(certified)
+
+
+def test_ompl_motions_get_the_answers_of_ompls_own_validator(wall_env):
+    """The swept motion validator answers OMPL's motion checks as OMPL's DiscreteMotionValidator does (motions from
+    the wall's one side and from random states; some pass, some do not), and RRT-Connect around the wall plans the
+    same path with either."""
+    from maniskill_pnp.planning.rrt import JointSpacePlanner
+
+    prims, a, b = _either_side_of_the_wall(wall_env)
+    world = prims.world
+    swept, plain = (JointSpacePlanner(world, swept_motions=s, cache=None) for s in (True, False))
+    rng = np.random.default_rng(3)
+    answers = []
+    for k in range(40):
+        q0 = a if k % 2 else rng.uniform(world.arm.lower, world.arm.upper)
+        q1 = world.arm.clip(q0 + rng.normal(0.0, 0.5, world.arm.arm_joints))
+        s0, s1 = plain._state(q0), plain._state(q1)
+        answers.append((swept._setup.getSpaceInformation().checkMotion(s0, s1),
+                        plain._setup.getSpaceInformation().checkMotion(s0, s1)))
+    assert all(fast == ompl for fast, ompl in answers), answers
+    assert any(v for v, _ in answers) and not all(v for v, _ in answers)
+    assert not world.segment_valid(a, b)  # the wall is in the way: the query needs RRT-Connect
+    fast, ompl = swept.plan(a, b), plain.plan(a, b)
+    assert fast.ok and len(fast.path) > 2 and np.array_equal(fast.path, ompl.path)
+
+
+def test_free_motions_take_the_free_limits_and_straight_moves_the_contact_ones(cube_env):
+    """Slower free-space limits stretch the planned motion to the pre-grasp, not the straight descent."""
+    import re
+    from dataclasses import replace
+
+    from maniskill_pnp.planning import panda_spec
+
+    steps = {}
+    for free in (panda_spec().free_velocity, 0.5):
+        prims = _prims(cube_env, arm=replace(panda_spec(), free_velocity=free))
+        pick = prims.pick(_cube_grasp(cube_env), target="cube")
+        assert pick.ok, pick.reason
+        steps[free] = {stage: int(re.search(r"(\d+) control steps", detail).group(1))
+                       for stage, _, detail in pick.stages if "control steps" in detail}
+    fast, slow = steps[panda_spec().free_velocity], steps[0.5]
+    assert slow["move_to_pregrasp"] > fast["move_to_pregrasp"]
+    assert slow["descend"] == fast["descend"] and slow["lift"] == fast["lift"]

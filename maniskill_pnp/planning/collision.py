@@ -222,6 +222,29 @@ class CollisionWorld:
         """
         q0, q1 = np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64)
         n = max(1, int(np.ceil(np.max(np.abs(q1 - q0)) / resolution)))
+        if not (self.arm.within_limits(q0) and self.arm.within_limits(q1)):
+            return False  # the limits are a box: with both ends inside it, so is every configuration between them
+        return self._states_valid(q0, q1, n, bisection_order(n))
+
+    def motion_valid(self, q0: np.ndarray, q1: np.ndarray, n: int) -> bool:
+        """OMPL's discrete motion check, answered as :meth:`segment_valid` answers: True when ``q1`` and the ``n - 1``
+        configurations ``q0 + (q1 - q0) * (i / n)`` between the two are valid; ``q0`` is taken as valid (an OMPL
+        motion starts at a valid state). ``n`` is the motion's segment count in OMPL's state space (0 or 1: only
+        ``q1`` is checked)."""
+        q0, q1 = np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64)
+        if not self.is_valid(q1):
+            return False
+        if n < 2:
+            return True
+        between = bisection_order(n)[2:]
+        if not self.arm.within_limits(q0):  # not an OMPL motion: the configurations between need their own limit test
+            return all(self.is_valid(q0 + (q1 - q0) * (i / n)) for i in between)
+        return self._states_valid(q0, q1, n, between)
+
+    def _states_valid(self, q0: np.ndarray, q1: np.ndarray, n: int, indices: list[int]) -> bool:
+        """True when the configurations ``q0 + (q1 - q0) * (i / n)`` (``i`` in ``indices``, both ends within the joint
+        limits) collide with neither the arm itself nor the scene; those on stretches the swept balls certify clear of
+        every obstacle get only the self-collision test."""
         clear: dict[tuple[int, int], bool] = {}
 
         def scene_free(i: int) -> bool:  # i's coarse stretch, else its fine one, is clear of every obstacle
@@ -235,9 +258,7 @@ class CollisionWorld:
                     return True
             return False
 
-        if not (self.arm.within_limits(q0) and self.arm.within_limits(q1)):
-            return False  # the limits are a box: with both ends inside it, so is every configuration between them
-        for i in bisection_order(n):
+        for i in indices:
             q = q0 + (q1 - q0) * (i / n)
             self._set(q)
             if self._world.self_collide() if scene_free(i) else self._world.collide():
@@ -359,8 +380,16 @@ class _SweptBalls:
 def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rows of ``v`` (N, 3) rotated by the rows of the unit quaternions ``q`` (N, 4: w, x, y, z)."""
     w, u = q[:, :1], q[:, 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    t = 2.0 * _cross(u, v)
+    return v + w * t + _cross(u, t)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (N, 3) arrays (``np.cross``'s arithmetic, without its per-call overhead, which
+    dominates for the few rows of a link-ball check)."""
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=1)
 
 
 class _ShapeGeometry:

@@ -470,7 +470,8 @@ class MotionPrimitives:
                 detail = f", leaving {sorted(touching)} that the arm touched at the start"
         if not plan.ok:
             raise _StageFailed(stage, plan.reason)
-        yield from self._execute(plan.path, stage, res, ("cached plan" if plan.cached else f"{len(plan.path)} waypoints") + detail)
+        yield from self._execute(plan.path, stage, res, ("cached plan" if plan.cached else f"{len(plan.path)} waypoints") + detail,
+                                 free=True)
 
     def _straight(self, goal: sapien.Pose, stage: str, res: PrimitiveResult, guarded: bool = False) -> None:
         seg = self._timed(self.kin.straight_line, self.executor.qpos(), goal)
@@ -483,10 +484,9 @@ class MotionPrimitives:
             raise _StageFailed(stage, f"guarded move stopped on contact: {guard.tripped:.1f} N up on the gripper "
                                       f"(limit {self.guard_force:g} N), {above * 1000:.0f} mm above its goal")
 
-    def _execute(self, path: np.ndarray, stage: str, res: PrimitiveResult, detail: str, stop=None) -> None:
-        traj = self._timed(
-            time_parameterize, path, self.executor.dt, self.arm.max_velocity, self.arm.max_acceleration
-        )
+    def _execute(self, path: np.ndarray, stage: str, res: PrimitiveResult, detail: str, stop=None,
+                 free: bool = False) -> None:
+        traj = self._timed(time_parameterize, path, self.executor.dt, *self.arm.limits(free))
         err = yield Motion(traj, stop=stop)
         res.stages.append((stage, True, f"{detail}, {len(traj)} control steps, final error {err:.3f} rad"))
 

@@ -28,8 +28,15 @@ class ArmSpec:
         gripper_open: Finger joint position when open (m, per finger).
         gripper_closed: Finger joint position commanded to close (m, per finger; may be below 0 to squeeze).
         home: A collision-free rest configuration of the arm joints, above the workspace.
-        max_velocity: Joint velocity limit used for time parameterization (rad/s).
-        max_acceleration: Joint acceleration limit used for time parameterization (rad/s^2).
+        max_velocity: Joint velocity limit (rad/s) of the straight-line moves, which touch or may touch objects (a
+            grasp's descent and lift, a slide's lowering, push and retract): slow enough that a guarded move stops
+            on the first contact.
+        max_acceleration: Joint acceleration limit (rad/s^2) of the straight-line moves.
+        free_velocity: Joint velocity limit (rad/s) of the planned motions through free space (to a pre-grasp or
+            pre-slide pose, carrying a held object to its release pose, home). The default is the Panda's rated
+            limit of joints 1-4, the lowest of its seven.
+        free_acceleration: Joint acceleration limit (rad/s^2) of the planned motions, below the Panda's rated
+            7.5-20 rad/s^2.
     """
 
     urdf: Path
@@ -43,7 +50,14 @@ class ArmSpec:
     home: np.ndarray
     max_velocity: float = 1.5
     max_acceleration: float = 2.0
+    free_velocity: float = 2.175
+    free_acceleration: float = 6.0
     finger_links: tuple[str, ...] = field(default=("panda_leftfinger", "panda_rightfinger"))
+
+    def limits(self, free: bool) -> tuple[float, float]:
+        """(velocity, acceleration) limits of a planned motion through free space (``free``) or of a straight-line
+        move."""
+        return (self.free_velocity, self.free_acceleration) if free else (self.max_velocity, self.max_acceleration)
 
     def clip(self, q: np.ndarray) -> np.ndarray:
         """Clip arm joint values into the joint limits."""

@@ -17,6 +17,8 @@ object that is not picked falls off past ``belt_y[1]`` onto the table and is mis
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import sapien
 import torch
@@ -29,6 +31,7 @@ from mani_skill.utils.scene_builder.table import TableSceneBuilder
 
 from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion
 from maniskill_pnp.planning.primitives import MotionPrimitives, PrimitiveResult, grasp_pose
+from maniskill_pnp.planning.robot import panda_spec
 from maniskill_pnp.tasks.bin import build_bin
 from maniskill_pnp.tasks.primitive_env import Decision, Judgement, PrimitiveStepEnv
 from maniskill_pnp.tasks.registration import register_task
@@ -306,8 +309,10 @@ class ConveyorProximityEnv(PrimitiveStepEnv):
     @property
     def _lockstep(self) -> LockstepExecutor:
         if self.prims is None:
-            self.prims = MotionPrimitives(self, static_actors={"table-workspace", "ground", "bin", "belt"}, seed=self.planner_seed,
-                                          on_control_step=self._on_control_step)
+            v, a = self.conveyor.arm_velocity, self.conveyor.arm_acceleration
+            arm = replace(panda_spec(), max_velocity=v, max_acceleration=a, free_velocity=v, free_acceleration=a)
+            self.prims = MotionPrimitives(self, arm=arm, static_actors={"table-workspace", "ground", "bin", "belt"},
+                                          seed=self.planner_seed, on_control_step=self._on_control_step)
         return self.prims.executor.lockstep
 
     def _check_can_step(self) -> None:

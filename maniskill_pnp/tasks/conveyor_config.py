@@ -61,6 +61,9 @@ class ConveyorSpec:
         best_row_grasp: Hand-marked optimal (pre-pick row, grasp index) per speed class, in the sensed lane; see
             :meth:`best`. The "bonus" reward and the scripted oracle use it.
         bin: The place bin.
+        arm_velocity: Joint velocity limit (rad/s) of the arm's motions: the pre-pick and grasp coordinates and the
+            hand-marked optimal pairs are timed against the belt at these limits.
+        arm_acceleration: Joint acceleration limit (rad/s^2) of the arm's motions.
     """
 
     belt_x: float = -0.10
@@ -85,6 +88,8 @@ class ConveyorSpec:
     grasp_yaw: float = np.pi / 2
     best_row_grasp: dict[str, tuple[int, int]] = field(default_factory=lambda: dict(_BEST_ROW_GRASP))
     bin: BinSpec = BinSpec(center=(-0.25, 0.36, 0.0))
+    arm_velocity: float = 1.5
+    arm_acceleration: float = 2.0
 
     @property
     def prepick_coords(self) -> np.ndarray:
