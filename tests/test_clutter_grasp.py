@@ -137,6 +137,13 @@ def test_faults_are_detected_and_truncate(env):
     for _ in range(2):
         base.scene.step()
     assert base.detect_faults()[0] == f"{base.clutter.active[0][1]} rests on the gripper (panda_leftfinger) at the home pose"
+    # the forces it judges by (the contacts fetched once) are ManiSkill's own pairwise forces, bit for bit
+    links = (base.agent.finger1_link, base.agent.finger2_link, base.agent.robot.links_map["panda_hand"])
+    forces = base._gripper_contact_forces(links)
+    pairs = [(link, actor) for link in links for actor in base.clutter.active_actors[0]]
+    ours = torch.stack([forces(link, actor) for link, actor in pairs])
+    assert torch.equal(ours, torch.stack([base.scene.get_pairwise_contact_forces(link, actor) for link, actor in pairs]))
+    assert (ours.norm(dim=-1) > 0).any()
 
     env.reset(seed=2)
     base.detect_faults = lambda: ["a fault found after the step"]  # whatever the action did, the episode ends

@@ -133,3 +133,25 @@ def test_heightmap_of_a_known_box(box_env):
     # The box's colour (blue) is seen on top of it.
     rgb = obs["color_heightmap"][0].numpy()[mask].astype(float).mean(0)
     assert rgb[2] > rgb[0] + 30
+
+
+def test_projection_keeps_the_highest_point_and_the_colour_of_the_last_one_at_that_height():
+    """Per pixel the highest point wins; among points at that height the last one's colour (the same for every batch
+    entry); points outside the grid, too high or not valid are dropped; pixels no point reached stay unfilled."""
+    from maniskill_pnp.tasks.heightmap import project_heightmap
+
+    ws = WorkspaceSpec(heightmap_size=4, pixel_size=0.1, center=(0.0, 0.0))
+    x0, y0 = ws.bounds[0, 0], ws.bounds[1, 0]
+    z = ws.table_z
+    pts = torch.tensor([[x0 + 0.05, y0 + 0.05, z + 0.02], [x0 + 0.05, y0 + 0.05, z + 0.03],  # pixel (0, 0): 3 cm
+                        [x0 + 0.06, y0 + 0.04, z + 0.03], [x0 + 0.35, y0 + 0.15, z + 0.01],  # a tie; pixel (1, 3)
+                        [x0 + 0.35, y0 + 0.15, z + 0.5], [x0 - 0.05, y0 + 0.05, z + 0.1],  # too high; off the grid
+                        [x0 + 0.15, y0 + 0.25, z + 0.04]], dtype=torch.float32)  # not valid
+    colors = torch.arange(21, dtype=torch.uint8).reshape(7, 3)
+    valid = torch.tensor([True] * 6 + [False])
+    height, color, filled = project_heightmap(pts.expand(2, -1, -1), colors.expand(2, -1, -1), valid.expand(2, -1), ws)
+    for b in range(2):
+        assert filled[b].sum() == 2 and filled[b, 0, 0] and filled[b, 1, 3]
+        assert height[b, 0, 0].item() == pytest.approx(0.03, abs=1e-6) and height[b, 1, 3].item() == pytest.approx(0.01, abs=1e-6)
+        assert color[b, 0, 0].tolist() == [6.0, 7.0, 8.0] and color[b, 1, 3].tolist() == [9.0, 10.0, 11.0]
+        assert height[b][~filled[b]].eq(0).all() and color[b][~filled[b]].eq(0).all()

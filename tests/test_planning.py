@@ -240,7 +240,8 @@ def test_a_straight_joint_segment_takes_toppras_profile_in_closed_form(cube_env)
 
 
 def test_toppra_samples_are_mplibs_to_the_bit(cube_env):
-    """toppra called directly (constraints built once per limits) samples the trajectory of mplib's TOPP."""
+    """toppra called directly (constraints built once per limits, gridpoints a pass at a time, TOPP-RA's two passes
+    run by path_velocities) samples the trajectory of mplib's TOPP, at both arm limits."""
     from maniskill_pnp.planning.trajectory import densify, toppra_samples
 
     prims = _prims(cube_env)
@@ -250,8 +251,30 @@ def test_toppra_samples_are_mplibs_to_the_bit(cube_env):
     for scale in (0.01, 0.05, 0.2, 0.05):  # a bent path of 12 waypoints at each scale; the limits' constraints reused
         q0 = rng.uniform(arm.lower, arm.upper) * 0.5
         path = densify(np.vstack([q0, q0 + np.cumsum(rng.normal(0.0, scale, (11, 7)), axis=0)]))
-        _, ref, _, _, _ = planner.TOPP(path, step=0.05)
-        np.testing.assert_array_equal(toppra_samples(path, 0.05, arm.max_velocity, arm.max_acceleration), ref)
+        for v, a in ((arm.max_velocity, arm.max_acceleration), (arm.free_velocity, arm.free_acceleration)):
+            planner.joint_vel_limits, planner.joint_acc_limits = np.full(7, v), np.full(7, a)
+            _, ref, _, _, _ = planner.TOPP(path, step=0.05)
+            np.testing.assert_array_equal(toppra_samples(path, 0.05, v, a), ref)
+
+
+def test_gridpoints_are_toppras_own_to_the_bit():
+    """The gridpoints checked a pass at a time are those toppra proposes one segment at a time (with TOPP-RA's
+    defaults), for smooth and rough paths of 2 to 60 waypoints, some long enough to be split for length alone."""
+    import toppra
+    from toppra.interpolator import propose_gridpoints
+
+    from maniskill_pnp.planning.trajectory import gridpoints
+
+    rng = np.random.default_rng(4)
+    sizes = set()
+    for k in range(40):
+        n = int(rng.integers(2, 61))
+        path = np.cumsum(rng.normal(0.0, (0.005, 0.05, 0.3)[k % 3], (n, 7)), axis=0)
+        spline = toppra.SplineInterpolator(np.linspace(0, 1, n), path)
+        ours = gridpoints(spline)
+        np.testing.assert_array_equal(ours, np.array(propose_gridpoints(spline, max_err_threshold=1e-3, min_nb_points=100)))
+        sizes.add(len(ours))
+    assert min(sizes) < 200 < max(sizes)  # refined by curvature, not only halved to the minimum count
 
 
 def test_a_free_motion_starting_against_a_movable_object_moves_away_from_it(cube_env):
@@ -370,6 +393,31 @@ def test_direct_drives_follow_a_reset_gripper(cube_env):
     assert np.max(prims.executor.finger_qpos()) < 0.03
 
 
+def test_a_sync_reuses_the_shapes_of_unmoved_actors_and_places_moved_ones_anew(cube_env):
+    """After syncs at both margins and a moved cube, the world answers as a fresh one synced once: the same
+    obstacles, boxes and collisions."""
+    import sapien
+
+    from maniskill_pnp.planning.collision import CollisionWorld
+
+    cube_env.reset(seed=0)
+    prims = _prims(cube_env)
+    world, cube, scene = prims.world, cube_env.unwrapped.cube, cube_env.unwrapped.scene
+    rng = np.random.default_rng(3)
+    qs = [world.arm.clip(prims.home + rng.normal(0.0, 0.8, world.arm.arm_joints)) for _ in range(60)]
+    for margin in (0.0, 0.015, 0.0):
+        world.sync_scene(scene, margin=margin)
+    cube.set_pose(sapien.Pose(p=[0.05, -0.1, 0.02]))
+    for margin in (0.015, 0.0, 0.015):
+        world.sync_scene(scene, margin=margin)
+        fresh = CollisionWorld(world.arm, base_pose=world.base_pose)
+        fresh.sync_scene(scene, margin=margin)
+        assert world.fingerprint() == fresh.fingerprint()
+        np.testing.assert_array_equal(world._boxes, fresh._boxes)
+        assert [world.is_valid(q) for q in qs] == [fresh.is_valid(q) for q in qs]
+    assert len({world.is_valid(q) for q in qs}) == 2
+
+
 def test_obstacles_out_of_the_arms_reach_stay_out_of_the_checks_but_in_the_fingerprint(cube_env):
     from maniskill_pnp.planning.robot import urdf_reach
 
@@ -398,8 +446,9 @@ def test_obstacles_out_of_the_arms_reach_stay_out_of_the_checks_but_in_the_finge
 
 
 def test_segment_checks_answer_as_a_check_of_every_configuration(cube_env):
-    """Stretches certified clear of the scene skip its test; the answers are those of is_valid at every configuration,
-    at both margins, with and without a held object, and some stretches are certified."""
+    """Stretches certified clear of the scene skip its test, and those certified clear of self-collision (nothing held)
+    the self test; the answers are those of is_valid at every configuration, at both margins, with and without a held
+    object, and some stretches are certified, and some not, either way."""
     from maniskill_pnp.planning.collision import bisection_order
 
     prims = _prims(cube_env)
@@ -426,7 +475,29 @@ def test_segment_checks_answer_as_a_check_of_every_configuration(cube_env):
         world._sweep.clear = clear
     assert all(fast == every for fast, every in answers), answers
     assert any(v for v, _ in answers) and not all(v for v, _ in answers)
-    assert any(certified) and not all(certified)
+    scene, own = (np.array([c[k] for c in certified]) for k in (0, 1))
+    assert scene.any() and not scene.all()
+    assert own.any() and not own.all()
+
+
+def test_mplibs_collision_test_is_its_self_test_or_its_scene_test(cube_env):
+    """What the segment checks rely on to skip one of the two tests: at any configuration, with or without a held
+    object, mplib's ``collide`` is true exactly when ``self_collide`` or ``collide_with_others`` finds a contact (both
+    ways seen)."""
+    world = _prims(cube_env).world
+    rng = np.random.default_rng(2)
+    seen = set()
+    for held in (False, True):
+        world.sync_scene(cube_env.unwrapped.scene)
+        if held:
+            world.attach_box(np.array([0.03, 0.02, 0.04]), np.array([0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0]))
+        for _ in range(200):
+            world._set(rng.uniform(world.arm.lower, world.arm.upper))
+            own, others = bool(world._world.self_collide()), bool(world._world.collide_with_others())
+            assert world._world.collide() == (own or others)
+            seen |= {name for name, hit in (("self", own), ("scene", others)) if hit}
+        world.detach()
+    assert seen == {"self", "scene"}
 
 
 def test_ompl_motions_get_the_answers_of_ompls_own_validator(wall_env):
@@ -470,3 +541,31 @@ def test_free_motions_take_the_free_limits_and_straight_moves_the_contact_ones(c
     fast, slow = steps[panda_spec().free_velocity], steps[0.5]
     assert slow["move_to_pregrasp"] > fast["move_to_pregrasp"]
     assert slow["descend"] == fast["descend"] and slow["lift"] == fast["lift"]
+
+
+def test_covering_balls_hold_the_convex_hull_of_a_link_and_are_smaller_than_its_one_ball():
+    """Every point of the hull (points mixed at random, and the hull's vertices) lies in one of the balls, for random
+    clouds and the Panda's own links; the balls of the forearm and the hand are about half the one ball's size."""
+    from maniskill_pnp.planning.robot import covering_balls, panda_spec, urdf_link_bounds
+
+    rng = np.random.default_rng(5)
+    clouds = [rng.normal(0.0, (0.2, 0.05, 0.03), (40, 3)), rng.uniform(-0.1, 0.1, (8, 3)), rng.normal(0.0, 0.1, (3, 3))]
+    for points in clouds:
+        balls = covering_balls(points)
+        weights = rng.dirichlet(np.full(len(points), 0.3), size=3000)
+        inside = np.vstack([points, weights @ points])
+        gaps = np.stack([np.linalg.norm(inside - c, axis=1) - r for c, r in balls])
+        assert (gaps.min(axis=0) <= 1e-12).all()
+    bounds = urdf_link_bounds(panda_spec().urdf)
+    for name in ("panda_link5", "panda_hand"):
+        assert max(r for _, r in bounds[name].balls) < 0.6 * bounds[name].radius
+
+
+def test_actor_pose_reads_manisklls_own_pose_without_tensors(cube_env):
+    """On the CPU the entity's pose is what ``actor.pose`` copies into tensors: the same float32 values."""
+    from maniskill_pnp.planning.collision import actor_pose
+
+    cube_env.reset(seed=1)
+    for actor in cube_env.unwrapped.scene.actors.values():
+        pose = actor_pose(actor)
+        np.testing.assert_array_equal(np.concatenate([pose.p, pose.q]), actor.pose.raw_pose[0].numpy())

@@ -73,6 +73,7 @@ class CollisionWorld:
         self._world = self._planner.planning_world
         self._robot = self._planner.robot
         self._fcl = mplib.pymp.collision_detection.fcl
+        self._mplib = mplib.pymp
         self._finger_qpos = np.full(len(self._planner.user_joint_names) - arm.arm_joints, arm.gripper_open)
         self.base_pose = sapien.Pose() if base_pose is None else _pose(base_pose)
         self._base_inv = self.base_pose.inv()
@@ -86,6 +87,8 @@ class CollisionWorld:
         self._shapes: dict[tuple[str, int], _ShapeGeometry] = {}
         self._sweep = _SweptBalls(arm, self._planner)
         self._boxes = np.zeros((0, 2, 3))  # the FCL world's obstacles as base-frame AABBs (grown by the margin)
+        self._box_objects: list[tuple[str, object]] = []  # the name and FCL object of each box's obstacle
+        self._placed: dict[tuple[str, float], tuple[tuple, list]] = {}  # (actor, margin) -> (its pose, its shapes placed)
 
     # ------------------------------------------------------------------ scene
     def sync_scene(
@@ -110,21 +113,42 @@ class CollisionWorld:
                 if f"{name}#{i}" not in self._out_of_reach:
                     self._world.remove_normal_object(f"{name}#{i}")
         self.obstacles, self._out_of_reach = {}, {}
-        boxes = []
+        boxes, self._box_objects = [], []
         for name, actor in scene.actors.items():
             if name in ignore or name in skip:
                 continue
-            for ob, shape in self._actor_obstacles(name, actor, env_idx):
-                i = len(self.obstacles.setdefault(name, []))
-                self.obstacles[name].append(ob)
-                geometry = self._geometry(name, i, shape)
-                fcl_object = self._fcl.CollisionObject(geometry.fcl(self.margin), ob.pose[:3], ob.pose[3:])
-                if ob.kind != "plane" and np.linalg.norm(ob.pose[:3]) - geometry.radius - self.margin > self.reach:
+            for i, (ob, fcl_object, box) in enumerate(self._placed_shapes(name, actor, env_idx)):
+                self.obstacles.setdefault(name, []).append(ob)
+                if box is None:
                     self._out_of_reach[f"{name}#{i}"] = fcl_object
                 else:
                     self._world.set_normal_object(f"{name}#{i}", fcl_object)
-                    boxes.append(geometry.aabb(ob.pose, self.margin))
+                    boxes.append(box)
+                    self._box_objects.append((f"{name}#{i}", fcl_object))
         self._boxes = np.array(boxes).reshape(-1, 2, 3)
+
+    def _placed_shapes(self, name: str, actor, env_idx: int) -> list[tuple[Obstacle, object, np.ndarray | None]]:
+        """Per collision shape of actor ``name``: its :class:`Obstacle`, its FCL object and its box (None: out of
+        reach), at the current margin. Built again only when the actor's pose, its shapes or the margin changed since
+        the last sync (objects at rest, the table and the bin keep theirs)."""
+        entity = actor._objs[env_idx]
+        body = entity.find_component_by_type(sapien.physx.PhysxRigidBaseComponent)
+        if body is None:
+            return []
+        pose = actor_pose(actor, env_idx)
+        shapes = tuple(body.collision_shapes)
+        key = (env_idx, tuple(pose.p), tuple(pose.q), shapes)
+        cached = self._placed.get((name, self.margin))
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        placed = []
+        for ob, shape in self._actor_obstacles(name, pose, shapes):
+            geometry = self._geometry(name, len(placed), shape)
+            fcl_object = self._fcl.CollisionObject(geometry.fcl(self.margin), ob.pose[:3], ob.pose[3:])
+            far = ob.kind != "plane" and np.linalg.norm(ob.pose[:3]) - geometry.radius - self.margin > self.reach
+            placed.append((ob, fcl_object, None if far else geometry.aabb(ob.pose, self.margin)))
+        self._placed[(name, self.margin)] = (key, placed)
+        return placed
 
     def _geometry(self, name: str, i: int, shape) -> _ShapeGeometry:
         """The FCL geometry of shape ``i`` of actor ``name``, built once per shape and margin."""
@@ -133,15 +157,9 @@ class CollisionWorld:
             cached = self._shapes[(name, i)] = _ShapeGeometry(shape, self._fcl)
         return cached
 
-    def _actor_obstacles(self, name: str, actor, env_idx: int) -> Iterable[tuple[Obstacle, object]]:
-        entity = actor._objs[env_idx]
-        body = entity.find_component_by_type(sapien.physx.PhysxRigidBaseComponent)
-        if body is None:
-            return
-        # On the CPU the entity's own pose is the one ManiSkill's tensor copies (float32 both), read without tensors.
-        actor_pose = _pose(actor.pose.raw_pose[env_idx].cpu().numpy()) if actor.scene.gpu_sim_enabled else entity.pose
-        for i, shape in enumerate(body.collision_shapes):
-            world = actor_pose * shape.local_pose
+    def _actor_obstacles(self, name: str, pose: sapien.Pose, shapes) -> Iterable[tuple[Obstacle, object]]:
+        for i, shape in enumerate(shapes):
+            world = pose * shape.local_pose
             geometry = self._geometry(name, i, shape)
             kind, signature = geometry.kind, geometry.signature
             if kind in ("capsule", "cylinder"):
@@ -216,9 +234,10 @@ class CollisionWorld:
         an obstacle fails after a few checks; a valid one costs the same checks in any order.
 
         The answer is that of :meth:`is_valid` at every one of them, found faster: where a stretch of the segment
-        keeps every link (and a held object) provably away from every obstacle (:class:`_SweptBalls`: a ball per link,
-        grown by how far the stretch's joint motion can move it), its configurations need only the self-collision
-        test, a fraction of the cost of the scene test.
+        keeps every link (and a held object) provably away from every obstacle (:class:`_SweptBalls`: a few balls per
+        link, grown by how far the stretch's joint motion can move them), its configurations skip the scene test, where
+        it keeps the links apart they skip the self test, and the scene test of the rest sees only the obstacles within
+        reach (see :meth:`_states_valid`).
         """
         q0, q1 = np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64)
         n = max(1, int(np.ceil(np.max(np.abs(q1 - q0)) / resolution)))
@@ -243,25 +262,49 @@ class CollisionWorld:
 
     def _states_valid(self, q0: np.ndarray, q1: np.ndarray, n: int, indices: list[int]) -> bool:
         """True when the configurations ``q0 + (q1 - q0) * (i / n)`` (``i`` in ``indices``, both ends within the joint
-        limits) collide with neither the arm itself nor the scene; those on stretches the swept balls certify clear of
-        every obstacle get only the self-collision test."""
-        clear: dict[tuple[int, int], bool] = {}
+        limits) collide with neither the arm itself nor the scene. Where the swept balls certify a stretch clear of
+        every obstacle, its configurations skip the scene test; where they certify it clear of self-collision (no
+        held object), they skip the self test; where both, they are not posed at all. Where some obstacles are within
+        reach (nothing held), the scene test of the stretch is that of a world of those obstacles only: the others
+        cannot touch the arm there, and mplib tests every link against every obstacle of its world."""
+        blocks: dict[tuple[int, int], tuple[bool, bool, np.ndarray]] = {}
+        worlds: dict[tuple[int, int], object] = {}
+        own_too = not self._attached  # a held object's contacts with the arm are in mplib's self test
 
-        def scene_free(i: int) -> bool:  # i's coarse stretch, else its fine one, is clear of every obstacle
+        def certified(i: int) -> tuple[bool, bool, tuple[int, int]]:
+            """i's coarse stretch, else its fine one: (scene, self) clear, and the finest stretch looked at."""
+            scene = own = False
             for size in self.SWEEP_BLOCKS:
                 key = (size, i // size)
-                if key not in clear:
+                if key not in blocks:
                     a, b = key[1] * size, min(key[1] * size + size, n)
-                    clear[key] = self._sweep.clear(q0 + (q1 - q0) * (a / n), q0 + (q1 - q0) * (b / n), self._finger_qpos,
-                                                   self._boxes)
-                if clear[key]:
-                    return True
-            return False
+                    blocks[key] = self._sweep.clear(q0 + (q1 - q0) * (a / n), q0 + (q1 - q0) * (b / n), self._finger_qpos,
+                                                    self._boxes, own_too)
+                scene, own = scene or blocks[key][0], own or blocks[key][1]
+                if scene and own:
+                    break
+            return scene, own, key
+
+        def near_world(key: tuple[int, int]):
+            if self._attached:  # the held object is in the full world only
+                return self._world
+            if key not in worlds:
+                near = [self._box_objects[k] for k in np.flatnonzero(blocks[key][2])]
+                worlds[key] = self._mplib.PlanningWorld([self._robot], ["robot"], [o for _, o in near], [k for k, _ in near])
+            return worlds[key]
 
         for i in indices:
-            q = q0 + (q1 - q0) * (i / n)
-            self._set(q)
-            if self._world.self_collide() if scene_free(i) else self._world.collide():
+            scene, own, key = certified(i)
+            if scene and own:
+                continue
+            self._set(q0 + (q1 - q0) * (i / n))
+            if scene:
+                hit = self._world.self_collide()
+            elif own:
+                hit = near_world(key).collide_with_others()
+            else:
+                hit = near_world(key).collide()
+            if hit:
                 return False
         return True
 
@@ -282,6 +325,14 @@ class CollisionWorld:
     def base_to_world(self, pose: np.ndarray | sapien.Pose) -> sapien.Pose:
         """A base-frame pose expressed in the world frame."""
         return self.base_pose * _pose(pose)
+
+
+def actor_pose(actor, env_idx: int = 0) -> sapien.Pose:
+    """The pose of ManiSkill ``actor`` in sub-scene ``env_idx``: ``actor.pose``'s. On the CPU the entity's own pose is
+    the one ManiSkill's tensor copies (float32 both), read without building tensors."""
+    if actor.scene.gpu_sim_enabled:
+        return _pose(actor.pose.raw_pose[env_idx].cpu().numpy())
+    return actor._objs[env_idx].pose
 
 
 def bisection_order(n: int) -> list[int]:
@@ -331,11 +382,13 @@ def planning_urdf(urdf: Path) -> Path:
 class _SweptBalls:
     """Certifies that a straight joint-space stretch keeps the arm away from a set of boxes.
 
-    Each link with collision geometry is held by a ball (:func:`~maniskill_pnp.planning.robot.urdf_link_bounds`); a
+    Each link with collision geometry is held by a few balls (:func:`~maniskill_pnp.planning.robot.covering_balls`); a
     held object by a ball about its box. Over the stretch ``qa -> qb`` no point of a link strays from where it is at
     the middle configuration by more than the sum over the arm joints of the joint's lever times half the joint's
     travel (a rotation by ``d`` moves a point at most its distance from the axis times ``d``). The stretch is clear
-    when every link's ball, grown by that, misses every box.
+    of the scene when every link's ball, grown by that, misses every box, and clear of self-collision when the balls of
+    every link pair that mplib's self test checks miss each other, grown by what the joints past the pair's last shared
+    joint can move one link relative to the other (the shared ones move both together).
     """
 
     def __init__(self, arm: ArmSpec, planner):
@@ -345,36 +398,76 @@ class _SweptBalls:
         colliding = set(planner.robot.get_fcl_model().get_collision_link_names())
         links = [name for name in planner.link_name_2_idx if bounds[name].radius > 0 and name in colliding]
         self._index = [planner.link_name_2_idx[name] for name in links]
-        self._center = np.array([bounds[name].center for name in links])
-        self._radius = np.array([bounds[name].radius for name in links])
-        self._lever = np.array([[bounds[name].lever.get(j, 0.0) for j in joints] for name in links])
+        # the balls of every link, each with its link's place in `links` and its lever
+        self._owner = np.array([k for k, name in enumerate(links) for _ in bounds[name].balls], dtype=np.int64)
+        self._center = np.array([c for name in links for c, _ in bounds[name].balls])
+        self._radius = np.array([r for name in links for _, r in bounds[name].balls])
+        link_lever = np.array([[bounds[name].lever.get(j, 0.0) for j in joints] for name in links])
+        self._lever = link_lever[self._owner]
         self._tcp = planner.link_name_2_idx[arm.tcp_link]
         self._tcp_lever = np.array([bounds[arm.tcp_link].lever.get(j, 0.0) for j in joints])
         self._held: tuple[np.ndarray, float] | None = None
+        # The link pairs mplib's self-collision test checks, as indices into the balls (None: a link of a pair has
+        # no ball, so no stretch is certified free of self-collision).
+        fcl = planner.robot.get_fcl_model()
+        names = fcl.get_collision_link_names()
+        pairs = sorted({tuple(sorted((names[i], names[j]))) for i, j in fcl.get_collision_pairs()})
+        self._pairs = None
+        if all(a in links and b in links for a, b in pairs):
+            balls = [np.flatnonzero(self._owner == k) for k in range(len(links))]
+            a, b = (np.array([x for la, lb in pairs for x in _pairs_of(balls[links.index(la)], balls[links.index(lb)])[k]],
+                             dtype=np.int64) for k in (0, 1))
+            # The joints that move both links of a pair move them together: only the joints past the last shared one
+            # move one relative to the other.
+            moved_by = (self._lever > 0).sum(axis=1)
+            shared = np.minimum(moved_by[a], moved_by[b])
+            past = np.arange(len(joints))[None, :] >= shared[:, None]
+            self._pairs = (a, b, (self._lever[a] + self._lever[b]) * past, self._radius[a] + self._radius[b])
+
+        self._boxes_of = None  # the boxes whose middles and half sizes are below
 
     def attach(self, center: np.ndarray | None, radius: float = 0.0) -> None:
         """A held object: a ball of ``radius`` about ``center`` in the TCP frame (None: nothing held)."""
         self._held = None if center is None else (np.asarray(center, dtype=np.float64), float(radius))
 
-    def clear(self, qa: np.ndarray, qb: np.ndarray, fingers: np.ndarray, boxes: np.ndarray) -> bool:
-        """True when no configuration between arm joints ``qa`` and ``qb`` (fingers fixed) brings a link or the held
-        object within reach of any of ``boxes`` ((M, 2, 3) lower and upper corners, base frame)."""
-        if len(boxes) == 0:
-            return True
+    def clear(self, qa: np.ndarray, qb: np.ndarray, fingers: np.ndarray, boxes: np.ndarray,
+              own: bool = False) -> tuple[bool, bool]:
+        """Whether any configuration between arm joints ``qa`` and ``qb`` (fingers fixed) can bring a link or the held
+        object within reach of any of ``boxes`` ((M, 2, 3) lower and upper corners, base frame), and, with ``own``,
+        two links of a pair that mplib's self-collision test checks within reach of each other: (scene clear, self
+        clear, which boxes may be reached); self clear is False without ``own``."""
+        if len(boxes) == 0 and not own:
+            return True, False, np.zeros(0, dtype=bool)
         mid = (qa + qb) / 2
         half = np.abs(qb - qa) / 2
         self._model.compute_forward_kinematics(np.concatenate([mid, fingers]))
-        poses = np.array([self._model.get_link_pose(i) for i in self._index])
+        poses = np.array([self._model.get_link_pose(i) for i in self._index])[self._owner]
         centers = _rotate(poses[:, 3:], self._center) + poses[:, :3]
         radii = self._radius + self._lever @ half
+        own_clear = False
+        if own and self._pairs is not None:  # in the frame of each pair's last shared joint
+            a, b, lever, radius = self._pairs
+            d = centers[a] - centers[b]
+            own_clear = bool((np.einsum("ij,ij->i", d, d) > (radius + lever @ half + 1e-6) ** 2).all())
+        if len(boxes) == 0:
+            return True, own_clear, np.zeros(0, dtype=bool)
         if self._held is not None:
             tcp = np.asarray(self._model.get_link_pose(self._tcp))[None]
             centers = np.vstack([centers, _rotate(tcp[:, 3:], self._held[0][None]) + tcp[:, :3]])
             lever = self._tcp_lever + np.linalg.norm(self._held[0]) + self._held[1]
             radii = np.append(radii, self._held[1] + lever @ half)
-        # distance from each ball's centre to each box (0 inside it)
-        gap = np.maximum(boxes[None, :, 0, :] - centers[:, None, :], 0.0) + np.maximum(centers[:, None, :] - boxes[None, :, 1, :], 0.0)
-        return bool((np.linalg.norm(gap, axis=-1) > radii[:, None] + 1e-6).all())
+        # squared distance from each ball's centre to each box (0 inside it)
+        if boxes is not self._boxes_of:
+            self._boxes_of, self._box_mid, self._box_half = boxes, boxes.mean(axis=1), (boxes[:, 1] - boxes[:, 0]) / 2
+        gap = np.abs(centers[:, None, :] - self._box_mid[None]) - self._box_half[None]
+        np.maximum(gap, 0.0, out=gap)
+        near = (np.einsum("ijk,ijk->ij", gap, gap) <= ((radii + 1e-6) ** 2)[:, None]).any(axis=0)
+        return not near.any(), own_clear, near
+
+
+def _pairs_of(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every pairing of an index of ``a`` with one of ``b``."""
+    return np.repeat(a, len(b)), np.tile(b, len(a))
 
 
 def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -33,7 +33,7 @@ import numpy as np
 import sapien
 import torch
 
-from maniskill_pnp.planning.collision import CollisionWorld
+from maniskill_pnp.planning.collision import CollisionWorld, actor_pose
 from maniskill_pnp.planning.executor import SimExecutor
 from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion, Program, drive
 from maniskill_pnp.planning.kinematics import Kinematics, quat_angle
@@ -519,7 +519,7 @@ class MotionPrimitives:
         return bool(np.max(self.executor.finger_qpos()) < self.arm.gripper_open - 0.005)
 
     def _actor_position(self, name: str) -> np.ndarray:
-        return self.env.scene.actors[name].pose.p[self.env_idx].cpu().numpy().astype(np.float64)
+        return np.asarray(actor_pose(self.env.scene.actors[name], self.env_idx).p, dtype=np.float64)
 
     def _object_heights(self, names: Collection[str]) -> dict[str, float]:
         return {n: float(self._actor_position(n)[2]) for n in names}

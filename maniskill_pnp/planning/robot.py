@@ -119,12 +119,47 @@ class LinkBound:
             travel of prismatic joints in between, and the ball. A rotation of that joint by ``d`` rad moves no point
             of the link farther than ``lever * |d|``.
         depth: The distance bound from the root link's origin to the link's frame origin (m).
+        balls: Smaller balls ``(center, radius)`` in the link's frame that together hold its collision geometry (see
+            :func:`covering_balls`); empty for a link without any.
     """
 
     center: np.ndarray
     radius: float
     lever: dict[str, float]
     depth: float
+    balls: tuple[tuple[np.ndarray, float], ...] = ()
+
+
+def covering_balls(points: np.ndarray, parts: int = 3) -> tuple[tuple[np.ndarray, float], ...]:
+    """``parts`` balls that together hold the convex hull of ``points`` (N×3): the hull cut into slabs of equal
+    thickness across its principal axis, each slab's piece held by a ball about the middle of its bounding box.
+
+    A piece of the hull between two planes is the hull of the points between them and of where the segments between
+    points cross the planes (every edge of the hull is such a segment), so a ball that holds those holds the piece.
+    """
+    points = np.unique(np.asarray(points, dtype=np.float64), axis=0)
+    if len(points) < 4 or parts < 2:
+        lo, hi = points.min(0), points.max(0)
+        return (((lo + hi) / 2, float(np.linalg.norm(points - (lo + hi) / 2, axis=1).max())),)
+    axis = np.linalg.svd(points - points.mean(0), full_matrices=False)[2][0]
+    s = points @ axis
+    cuts = np.linspace(s.min(), s.max(), parts + 1)[1:-1]
+    i, j = np.triu_indices(len(points), k=1)
+    crossings = []
+    for t in cuts:  # where the segments between points on either side of the plane s = t cross it
+        k = (s[i] - t) * (s[j] - t) < 0
+        w = ((t - s[i][k]) / (s[j][k] - s[i][k]))[:, None]
+        crossings.append(points[i[k]] + w * (points[j[k]] - points[i[k]]))
+    bounds = [-np.inf, *cuts, np.inf]
+    balls = []
+    for n in range(parts):
+        piece = [points[(s >= bounds[n]) & (s <= bounds[n + 1])]]
+        piece += [crossings[m] for m in (n - 1, n) if 0 <= m < len(cuts)]
+        piece = np.concatenate(piece)
+        lo, hi = piece.min(0), piece.max(0)
+        center = (lo + hi) / 2
+        balls.append((center, float(np.linalg.norm(piece - center, axis=1).max())))
+    return tuple(balls)
 
 
 @lru_cache(maxsize=8)
@@ -190,7 +225,7 @@ def urdf_link_bounds(urdf: Path) -> dict[str, LinkBound]:
             length += travel
             lever[joint] = length + reach
             length += offset
-        bounds[name] = LinkBound(center, radius, lever, length)
+        bounds[name] = LinkBound(center, radius, lever, length, covering_balls(pts) if link.findall("collision") else ())
     return bounds
 
 

@@ -101,7 +101,7 @@ class JointSpacePlanner:
             the same path whatever was planned before in the process; only a search that runs out of its time
             budget can end differently on a slower machine.
         swept_motions: Check OMPL's motions with :meth:`CollisionWorld.motion_valid` (the same answers as OMPL's
-            default validator, faster where the swept link balls certify a stretch clear of the scene); False: OMPL's
+            default validator, faster where the swept link balls certify a stretch clear); False: OMPL's
             default, one state validity call per configuration.
     """
 

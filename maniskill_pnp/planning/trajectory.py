@@ -8,6 +8,8 @@ import numpy as np
 import toppra
 from toppra import algorithm as toppra_algorithm
 from toppra import constraint as toppra_constraint
+from toppra.algorithm.reachabilitybased.reachability_algorithm import MAX_TRIES, SMALL, TINY
+from toppra.parametrizer import ParametrizeConstAccel
 
 
 def densify(path: np.ndarray, max_step: float = 0.05) -> np.ndarray:
@@ -70,15 +72,87 @@ def toppra_samples(path: np.ndarray, dt: float, max_velocity: float, max_acceler
     The computation of mplib's ``Planner.TOPP`` (a cubic spline over uniform path parameters, joint velocity and
     acceleration constraints, ``ParametrizeConstAccel``, ``int(duration / dt)`` samples), so the samples are the
     same to the bit (tested), without its velocity and acceleration samples and with the constraints built once per
-    limits.
+    limits. TOPP-RA's two passes run in :func:`path_velocities`.
     """
     path = np.asarray(path, dtype=np.float64)
     spline = toppra.SplineInterpolator(np.linspace(0, 1, len(path)), path)
     constraints = list(_constraints(path.shape[1], float(max_velocity), float(max_acceleration)))
-    trajectory = toppra_algorithm.TOPPRA(constraints, spline, parametrizer="ParametrizeConstAccel").compute_trajectory()
-    if trajectory is None:
+    grid = gridpoints(spline)
+    solver = toppra_algorithm.TOPPRA(constraints, spline, gridpoints=grid).solver_wrapper
+    sd = path_velocities(solver)
+    if sd is None:
         raise RuntimeError("Fail to parameterize path")
+    trajectory = ParametrizeConstAccel(spline, grid, sd)
     return np.asarray(trajectory(np.linspace(0, trajectory.duration, int(trajectory.duration / dt))), dtype=np.float64)
+
+
+def path_velocities(solver) -> np.ndarray | None:
+    """The path velocities at the gridpoints of TOPP-RA's time-optimal parameterization from rest to rest, or None
+    where it has none: the backward pass (the squared velocities from which the end is still reachable, stage by
+    stage) and the greedy forward pass, through ``solver`` (toppra's stage-wise LP solver of the constraints), with
+    toppra's own guards against numerical error. The same calls in the same order as toppra's
+    ``compute_parameterization``, so the same velocities to the bit (tested), without its per-stage bookkeeping.
+    """
+    n = solver.get_no_stages()
+    if solver.get_no_vars() != 2:  # only the joint velocity and acceleration constraints: no auxiliary variables
+        raise ValueError(f"path_velocities takes canonical linear constraints only, got {solver.get_no_vars()} variables")
+    up, down = np.array([1e-9, -1.0]), np.array([-1e-9, 1.0])
+    reach = np.zeros((n + 1, 2))  # squared velocities; the end at rest
+    solver.setup_solver()
+    for i in range(n - 1, -1, -1):
+        lo, hi = reach[i + 1]
+        x_lo = solver.solve_stagewise_optim(i, None, down, np.nan, np.nan, lo, hi)[1]
+        x_hi = solver.solve_stagewise_optim(i, None, up, np.nan, np.nan, lo, hi)[1]
+        if np.isnan(x_lo) or np.isnan(x_hi):
+            return None
+        reach[i] = (max(x_lo, 0.0), x_hi)
+    solver.close_solver()
+    if SMALL < reach[0, 0] or reach[0, 1] + SMALL < 0.0:  # the start, at rest, cannot reach the end
+        return None
+    deltas = solver.get_deltas()
+    xs = np.zeros(n + 1)
+    tries, i = 0, 0
+    solver.setup_solver()
+    while i < n:
+        u = solver.solve_stagewise_optim(i, None, np.array([-2 * deltas[i], -1.0]), xs[i], xs[i], reach[i + 1, 0],
+                                         reach[i + 1, 1])[0]
+        if np.isnan(u):  # just infeasible by numerical error: retry from a slightly lower velocity
+            if tries == MAX_TRIES:
+                return None
+            xs[i] = max(xs[i] - TINY, 0.999 * xs[i])
+            tries += 1
+            continue
+        tries = 0
+        x_next = xs[i] + 2 * deltas[i] * u
+        x_next = max(x_next - TINY, 0.9999 * x_next)
+        xs[i + 1] = min(reach[i + 1, 1], max(reach[i + 1, 0], x_next))
+        i += 1
+    solver.close_solver()
+    return np.sqrt(xs)
+
+
+def gridpoints(spline, max_err: float = 1e-3, max_segment: float = 0.05, min_points: int = 100,
+               max_iteration: int = 100) -> np.ndarray:
+    """The gridpoints toppra's ``propose_gridpoints`` gives a path (with the defaults TOPP-RA calls it with), the same
+    to the bit (tested), each pass's segments checked together: halve every segment longer than ``max_segment`` or
+    whose estimated interpolation error ``0.5 |q''(mid)| length^2`` exceeds ``max_err``, until none is; then halve all
+    until there are ``min_points``."""
+    grid = np.asarray(spline.path_interval, dtype=np.float64)
+    for iteration in range(max_iteration):
+        mid, length = 0.5 * (grid[:-1] + grid[1:]), grid[1:] - grid[:-1]
+        split = length > max_segment
+        short = ~split
+        if short.any():
+            error = np.max(np.abs(0.5 * spline(mid[short], 2) * length[short, None] ** 2), axis=1)
+            split[short] = error > max_err
+        grid = np.sort(np.concatenate([grid, mid[split]]))
+        if not split.any():
+            break
+    while len(grid) < min_points:
+        grid = np.sort(np.concatenate([grid, 0.5 * (grid[:-1] + grid[1:])]))
+    if iteration == max_iteration - 1:
+        raise ValueError("Unable to find a good gridpoint for this path.")
+    return grid
 
 
 @lru_cache(maxsize=8)

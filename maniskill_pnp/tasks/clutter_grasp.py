@@ -44,7 +44,7 @@ from gymnasium import spaces
 
 from mani_skill.agents.robots import Panda
 from mani_skill.sensors.camera import CameraConfig
-from mani_skill.utils import sapien_utils
+from mani_skill.utils import common, sapien_utils
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 
 from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion, Program
@@ -523,14 +523,31 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         links = (self.agent.finger1_link, self.agent.finger2_link, self.agent.robot.links_map["panda_hand"])
         qpos = self.agent.robot.get_qpos()[:, : len(self.home_qpos)].cpu().numpy()
         at_home = np.abs(qpos - self.home_qpos).max(axis=1) < 0.05
+        pairwise_forces = self._gripper_contact_forces(links)
         for i in self.clutter.in_play():
             for link in links:
-                force = self.scene.get_pairwise_contact_forces(link, self.clutter.actors[i]).norm(dim=-1).reshape(-1)
+                force = pairwise_forces(link, self.clutter.actors[i]).norm(dim=-1).reshape(-1)
                 for e in range(self.num_envs):
                     if not faults[e] and i in self.clutter.active_index[e] and float(force[e]) > self.GRIPPER_CONTACT_FORCE:
                         where = "at the home pose" if at_home[e] else "away from the home pose (the way home failed)"
                         faults[e] = f"{self.clutter.names[i]} rests on the gripper ({link.name}) {where}"
         return faults
+
+    def _gripper_contact_forces(self, links):
+        """ManiSkill's ``scene.get_pairwise_contact_forces`` for pairs of one of ``links`` and an object. On the CPU that
+        fetches every contact of the scene per pair; here they are fetched once and kept to those of ``links`` (in
+        their order), so each pair's force is ManiSkill's own sum over the same contacts."""
+        scene = self.scene
+        if self.gpu_sim_enabled:
+            return scene.get_pairwise_contact_forces
+        entities = {link._bodies[0].entity for link in links}
+        contacts = [c for c in scene.px.get_contacts() if c.bodies[0].entity in entities or c.bodies[1].entity in entities]
+
+        def force(link, actor) -> torch.Tensor:
+            impulse = sapien_utils.get_pairwise_contact_impulse(contacts, link._bodies[0].entity, actor._bodies[0].entity)
+            return common.to_tensor(impulse)[None, :] / scene.px.timestep
+
+        return force
 
     # ------------------------------------------------------------------ observation and info
     def get_obs(self, info: dict | None = None, unflattened: bool = False):

@@ -17,6 +17,7 @@ import torch
 
 from mani_skill.utils.structs.pose import Pose
 
+from maniskill_pnp.planning.collision import actor_pose
 from maniskill_pnp.planning.lockstep import Motion
 from maniskill_pnp.tasks.clutter import object_status, random_specs, redrop_poses, sample_clutter, sample_packed
 from maniskill_pnp.tasks.objects import ObjectSpec, build_object
@@ -233,7 +234,7 @@ class ClutterPool:
         """Where each of env ``env``'s objects is (:func:`~maniskill_pnp.tasks.clutter.object_status`); objects taken
         out of the bin (:meth:`empty_bin`) are in the bin."""
         actors = self.active_actors[env]
-        pos = np.stack([a.pose.p[env].cpu().numpy() for a in actors]) if actors else np.zeros((0, 3))
+        pos = np.stack([actor_pose(a, env).p for a in actors]) if actors else np.zeros((0, 3))
         status = object_status(pos, self.workspace)
         return ["bin" if i in self.emptied[env] else where for i, where in zip(self.active_index[env], status)]
 

@@ -78,16 +78,21 @@ def project_heightmap(
     row = torch.floor((points[..., 1] - bounds[1, 0]) / spec.pixel_size)
     hgt = points[..., 2] - spec.table_z
     keep = valid & (col >= 0) & (col < s) & (row >= 0) & (row < s) & (hgt > -0.01) & (hgt < spec.max_height)
-    # Work on the kept points only (found once), with one flat index over (batch, pixel).
-    kept = keep.reshape(-1).nonzero().squeeze(1)
-    flat = (kept // n) * (s * s) + row.reshape(-1)[kept].long() * s + col.reshape(-1)[kept].long()
-    hk = hgt.reshape(-1)[kept].clamp(min=0.0)
-    best = torch.full((b * s * s,), -1.0, device=dev).scatter_reduce(0, flat, hk, reduce="amax", include_self=True)
-    # Colour of the highest point: the points that reach their pixel's maximum write their colour (ties: any one).
-    top = hk >= best[flat]
-    color = torch.zeros((b * s * s, 3), device=dev)
-    color[flat[top]] = colors.reshape(b * n, -1)[kept][top].to(torch.float32)
+    # One flat index over (batch, pixel) per point; the points not kept go to one extra pixel, cut off at the end
+    # (elementwise and scatter work over every point is cheaper than picking the kept ones out). row * s + col is a
+    # whole number below s * s where kept, exact in float32.
+    offset = torch.arange(b, device=dev)[:, None] * (s * s)
+    flat = torch.where(keep, torch.where(keep, row * s + col, 0.0).long() + offset, b * s * s).reshape(-1)
+    hk = torch.where(keep, hgt.clamp(min=0.0), -1.0).reshape(-1)
+    best = torch.full((b * s * s + 1,), -1.0, device=dev).scatter_reduce(0, flat, hk, reduce="amax", include_self=True)
+    # Colour of the highest point: of the points that reach their pixel's maximum, the last one (in point order).
+    top = keep.reshape(-1) & (hk >= best[flat])
+    order = torch.where(top, torch.arange(b * n, device=dev), -1)
+    last = torch.full((b * s * s + 1,), -1, dtype=order.dtype, device=dev).scatter_reduce(0, flat, order, reduce="amax")
+    best, last = best[:-1], last[:-1]
     filled = best >= 0
+    color = torch.zeros((b * s * s, 3), device=dev)
+    color[filled] = colors.reshape(b * n, -1)[last[filled]].to(torch.float32)
     return best.clamp(min=0.0).reshape(b, s, s), color.reshape(b, s, s, 3), filled.reshape(b, s, s)
 
 
