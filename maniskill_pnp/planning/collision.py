@@ -431,7 +431,7 @@ class _SweptBalls:
         self._held = None if center is None else (np.asarray(center, dtype=np.float64), float(radius))
 
     def clear(self, qa: np.ndarray, qb: np.ndarray, fingers: np.ndarray, boxes: np.ndarray,
-              own: bool = False) -> tuple[bool, bool]:
+              own: bool = False) -> tuple[bool, bool, np.ndarray]:
         """Whether any configuration between arm joints ``qa`` and ``qb`` (fingers fixed) can bring a link or the held
         object within reach of any of ``boxes`` ((M, 2, 3) lower and upper corners, base frame), and, with ``own``,
         two links of a pair that mplib's self-collision test checks within reach of each other: (scene clear, self

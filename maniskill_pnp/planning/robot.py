@@ -139,8 +139,7 @@ def covering_balls(points: np.ndarray, parts: int = 3) -> tuple[tuple[np.ndarray
     """
     points = np.unique(np.asarray(points, dtype=np.float64), axis=0)
     if len(points) < 4 or parts < 2:
-        lo, hi = points.min(0), points.max(0)
-        return (((lo + hi) / 2, float(np.linalg.norm(points - (lo + hi) / 2, axis=1).max())),)
+        return (_ball_about_box(points),)
     axis = np.linalg.svd(points - points.mean(0), full_matrices=False)[2][0]
     s = points @ axis
     cuts = np.linspace(s.min(), s.max(), parts + 1)[1:-1]
@@ -155,11 +154,15 @@ def covering_balls(points: np.ndarray, parts: int = 3) -> tuple[tuple[np.ndarray
     for n in range(parts):
         piece = [points[(s >= bounds[n]) & (s <= bounds[n + 1])]]
         piece += [crossings[m] for m in (n - 1, n) if 0 <= m < len(cuts)]
-        piece = np.concatenate(piece)
-        lo, hi = piece.min(0), piece.max(0)
-        center = (lo + hi) / 2
-        balls.append((center, float(np.linalg.norm(piece - center, axis=1).max())))
+        balls.append(_ball_about_box(np.concatenate(piece)))
     return tuple(balls)
+
+
+def _ball_about_box(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """The ball about the middle of the bounding box of ``points`` (N×3) that holds them all."""
+    lo, hi = points.min(0), points.max(0)
+    center = (lo + hi) / 2
+    return center, float(np.linalg.norm(points - center, axis=1).max())
 
 
 @lru_cache(maxsize=8)

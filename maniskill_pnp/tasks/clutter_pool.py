@@ -181,7 +181,7 @@ class ClutterPool:
             if not out:
                 continue
             index, actors = self.active_index[e], self.active_actors[e]
-            resting = [(self.specs[i], a.pose.p[e].cpu().numpy()) for i, a, where in zip(index, actors, status) if where == "workspace"]
+            resting = [(self.specs[i], actor_pose(a, e).p) for i, a, where in zip(index, actors, status) if where == "workspace"]
             upright = self.loosely_packed or bool(self.packed[e])
             poses = redrop_poses(rng, [self.specs[index[j]] for j in out], resting, self.workspace, upright=upright)
             new_poses.update({(k, index[j]): pose for j, pose in zip(out, poses)})
