@@ -187,7 +187,7 @@ assert info["num_objects"] == NUM_OBJECTS == info["objects_remaining"]
 # sanity baseline, no learning) and mark it.
 
 # %%
-from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
+from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
 
 color = obs["color_heightmap"][0].cpu().numpy()
 depth = obs["depth_heightmap"][0].cpu().numpy()

@@ -18,7 +18,7 @@
 # In tight clutter a top-down grasp often has no room: a finger lands on a neighbour, or the object is wider than the
 # open jaws (8 cm) across its only free direction. The thesis' answer is a second kind of primitive, the **slide**:
 # push something aside, then grasp. `ClutterGraspSlide-v1` with `layout="complicated"` offers 8 hand-designed
-# locking arrangements (`maniskill_pnp/tasks/complicated_layouts.py`) in which no grasp fits until a slide has pulled
+# locking arrangements (`maniskill_pnp/scenes/complicated_layouts.py`) in which no grasp fits until a slide has pulled
 # them apart.
 #
 # This notebook shows the layouts, checks on `row_of_three` (three 4×9 cm bars pressed together) that centre
@@ -49,7 +49,7 @@ from maniskill_pnp.agents.pixel.evaluate import decide, plot_q_heatmaps
 from maniskill_pnp.agents.pixel.factories import make_action_mask, make_env, make_model
 from maniskill_pnp.agents.pixel.policy import GreedyPixelActor
 from maniskill_pnp.runtime import default_backends
-from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
+from maniskill_pnp.scenes.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
 
 BACKENDS = default_backends()
 torch.manual_seed(0)

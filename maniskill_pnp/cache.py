@@ -1,8 +1,8 @@
 """The package's cache folder of generated files (meshes, planning models).
 
 :func:`cache_dir` is ``$MANISKILL_PNP_CACHE/<name>`` (default ``~/.cache/maniskill_pnp/<name>``), created on first use.
-It imports nothing of the package, so that every subpackage can use it: :mod:`~maniskill_pnp.tasks.objects` writes the
-convex hulls of its procedural kinds to ``cache_dir("meshes")`` and :mod:`~maniskill_pnp.tasks.meshes` the convex
+It imports nothing of the package, so that every subpackage can use it: :mod:`~maniskill_pnp.scenes.objects` writes the
+convex hulls of its procedural kinds to ``cache_dir("meshes")`` and :mod:`~maniskill_pnp.scenes.meshes` the convex
 collision parts of mesh files (``objects`` imports ``meshes``, never the reverse); :mod:`~maniskill_pnp.planning.collision`
 writes its planning model of the arm to ``cache_dir("planning")``.
 """

@@ -41,8 +41,8 @@ def _export_clutter(args) -> None:
 
 
 def _check_scene(args) -> None:
-    from maniskill_pnp.tasks.grasp_feasibility import check_scene_file, format_report
-    from maniskill_pnp.tasks.scene_file import SceneFileError
+    from maniskill_pnp.scenes.grasp_feasibility import check_scene_file, format_report
+    from maniskill_pnp.scenes.scene_file import SceneFileError
 
     total = locked = 0
     for path in args.files:

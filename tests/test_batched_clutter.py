@@ -9,10 +9,10 @@ import pytest
 import torch
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
-from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
-from maniskill_pnp.tasks.objects import ObjectSpec
+from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
+from maniskill_pnp.scenes.objects import ObjectSpec
 from maniskill_pnp.tasks.primitive_env import batch_infos, parse_discrete_actions
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 WS = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=4)
 CUBE = ObjectSpec("cuboid", (0.02, 0.02, 0.02))

@@ -9,9 +9,9 @@ import torch
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
 from maniskill_pnp.tasks import OUTCOME_KEYS, TASK_IDS, ClutterGraspEnv
-from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
-from maniskill_pnp.tasks.objects import ObjectSpec
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
+from maniskill_pnp.scenes.objects import ObjectSpec
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
 N = 16 * 224 * 224
@@ -230,7 +230,7 @@ def test_bodies_out_of_every_view_are_left_out_of_the_render_and_the_heightmaps_
 
 
 def test_view_volumes_separate_boxes_only_outside_every_camera():
-    from maniskill_pnp.tasks.view_volume import ViewVolumes
+    from maniskill_pnp.cell.view_volume import ViewVolumes
 
     spec = WorkspaceSpec()
     views = ViewVolumes(spec)

@@ -10,12 +10,12 @@ import torch
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
 from maniskill_pnp.tasks import TASK_IDS, ClutterGraspSlideEnv
-from maniskill_pnp.tasks.clutter import density_range, random_specs, sample_packed, validate_layout
+from maniskill_pnp.scenes.clutter import density_range, random_specs, sample_packed, validate_layout
 from maniskill_pnp.tasks.clutter_grasp_slide import REWARD_SCHEMES, change_threshold, heightmap_changed
-from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
-from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
-from maniskill_pnp.tasks.objects import ObjectSpec
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
+from maniskill_pnp.scenes.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
+from maniskill_pnp.scenes.objects import ObjectSpec
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
 WS = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=4)

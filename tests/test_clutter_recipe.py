@@ -23,7 +23,7 @@ from maniskill_pnp.agents.pixel.evaluate import EpisodeTally
 from maniskill_pnp.agents.pixel.factories import make_env, make_model, make_policy
 from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS, OutcomeTracker
 from maniskill_pnp.agents.pixel.policy import make_pixel_policy
-from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+from maniskill_pnp.cell.pixel_action import PixelActionLayout
 
 LAYOUT = PixelActionLayout(1, 2, 8, 8)
 

@@ -150,8 +150,11 @@ def test_reward_schemes(env):
     unwrapped = env.unwrapped
     try:
         unwrapped.reward_scheme = "negative_bonus"
-        reward, info, _ = _oracle_episode(env, seed=5, speed="medium")
-        assert info["outcome"] == "placed" and reward == 2.0
+        for seed in range(5, 10):  # the first catch the oracle places (it places >= 90% of medium-speed objects)
+            reward, info, _ = _oracle_episode(env, seed=seed, speed="medium")
+            if info["outcome"] == "placed":
+                break
+        assert info["outcome"] == "placed" and reward == 2.0  # 1 for the place, +1 for the hand-marked coordinates
         env.reset(seed=5, options=dict(alignment="right", speed="medium"))
         env.step(0)
         env.step(0)  # a pre-pick coordinate over the left lane

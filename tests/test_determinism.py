@@ -13,7 +13,7 @@ import numpy as np
 SCRIPT = r"""
 import json, gymnasium as gym, numpy as np
 import maniskill_pnp
-from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
+from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
 
 env = gym.make("ClutterGraspSlide-v1", num_objects="medium", sim_backend="physx_cpu", render_backend="cpu")
 u = env.unwrapped

@@ -25,8 +25,8 @@ from maniskill_pnp.agents.pixel.factories import load_policy, make_model
 from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork, PixelQNetwork
 from maniskill_pnp.agents.pixel.loss import PixelDQNLoss
 from maniskill_pnp.agents.pixel.replay import make_pixel_replay, pack_transition, unpack_transition
-from maniskill_pnp.tasks.pixel_action import PixelActionLayout
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.cell.pixel_action import PixelActionLayout
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 H = W = 32
 R = 8

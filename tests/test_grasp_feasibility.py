@@ -1,14 +1,14 @@
-"""The grasp-feasibility check (maniskill_pnp.tasks.grasp_feasibility) on real collision shapes and the Panda's real
+"""The grasp-feasibility check (maniskill_pnp.scenes.grasp_feasibility) on real collision shapes and the Panda's real
 finger and hand geometry, and its ``check-scene`` command."""
 
 import pytest
 import sapien
 
 from maniskill_pnp.cli import main
-from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_SCENES_DIR
-from maniskill_pnp.tasks.grasp_feasibility import check_scene_file, grasp_feasibility
-from maniskill_pnp.tasks.objects import ObjectSpec
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.scenes.complicated_layouts import COMPLICATED_SCENES_DIR
+from maniskill_pnp.scenes.grasp_feasibility import check_scene_file, grasp_feasibility
+from maniskill_pnp.scenes.objects import ObjectSpec
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 WS = WorkspaceSpec()
 CUBE = ObjectSpec("cuboid", (0.02, 0.02, 0.02))
@@ -57,7 +57,7 @@ def test_check_scene_command(capsys):
 
 def test_shipped_hard_scenes_load_and_are_at_least_half_locked():
     from maniskill_pnp.agents.pixel.factories import scenario_layout_files, scenario_options
-    from maniskill_pnp.tasks.hard_scenes import HARD_SCENE_COUNT, hard_layout_files, hard_scene_files
+    from maniskill_pnp.scenes.hard_scenes import HARD_SCENE_COUNT, hard_layout_files, hard_scene_files
 
     files = hard_scene_files()
     assert len(files) == HARD_SCENE_COUNT
@@ -69,8 +69,8 @@ def test_shipped_hard_scenes_load_and_are_at_least_half_locked():
 
 
 def test_generator_reproduces_a_shipped_scene():
-    from maniskill_pnp.tasks.hard_scenes import HARD_SEED, hard_layout, hard_scene_files
-    from maniskill_pnp.tasks.scene_file import load_scene
+    from maniskill_pnp.scenes.hard_scenes import HARD_SEED, hard_layout, hard_scene_files
+    from maniskill_pnp.scenes.scene_file import load_scene
 
     _, layout, locked = hard_layout(HARD_SEED + 2, WS)
     shipped = load_scene(hard_scene_files()[2], WS)

@@ -11,13 +11,13 @@ import pytest
 import maniskill_pnp  # noqa: F401  (registers the tasks)
 from maniskill_pnp.agents.pixel.config import ClutterConfig
 from maniskill_pnp.agents.pixel.factories import make_env
-from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES
-from maniskill_pnp.tasks.hard_scenes import (
+from maniskill_pnp.scenes.complicated_layouts import COMPLICATED_LAYOUT_NAMES
+from maniskill_pnp.scenes.hard_scenes import (
     HARD_SCENE_COUNT, HARD_SEED, HARD_TRAIN_COUNT, HARD_TRAIN_SEED, hard_layout, hard_train_files, main,
 )
-from maniskill_pnp.tasks.objects import ObjectSpec
-from maniskill_pnp.tasks.scene_file import load_scene
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.scenes.objects import ObjectSpec
+from maniskill_pnp.scenes.scene_file import load_scene
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
 WS = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=4)

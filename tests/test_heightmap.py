@@ -8,10 +8,10 @@ import pytest
 import sapien
 import torch
 
-from maniskill_pnp.tasks.clutter import validate_layout
-from maniskill_pnp.tasks.objects import ObjectSpec
-from maniskill_pnp.tasks.pixel_action import PixelActionLayout
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.scenes.clutter import validate_layout
+from maniskill_pnp.scenes.objects import ObjectSpec
+from maniskill_pnp.cell.pixel_action import PixelActionLayout
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 WS = WorkspaceSpec()
 LAYOUT = PixelActionLayout(1, WS.num_rotations, WS.heightmap_size, WS.heightmap_size)
@@ -138,7 +138,7 @@ def test_heightmap_of_a_known_box(box_env):
 def test_projection_keeps_the_highest_point_and_the_colour_of_the_last_one_at_that_height():
     """Per pixel the highest point wins; among points at that height the last one's colour (the same for every batch
     entry); points outside the grid, too high or not valid are dropped; pixels no point reached stay unfilled."""
-    from maniskill_pnp.tasks.heightmap import project_heightmap
+    from maniskill_pnp.cell.heightmap import project_heightmap
 
     ws = WorkspaceSpec(heightmap_size=4, pixel_size=0.1, center=(0.0, 0.0))
     x0, y0 = ws.bounds[0, 0], ws.bounds[1, 0]

@@ -141,17 +141,39 @@ def test_graph_sees_imports_inside_functions():
     graph = import_graph()
     # fcn.py imports the equivariant network inside make_pixel_q_network (e2cnn is slow to import).
     assert "maniskill_pnp.agents.pixel.equivariant" in graph["maniskill_pnp.agents.pixel.fcn"]
-    assert "maniskill_pnp.tasks.meshes" in graph["maniskill_pnp.tasks.objects"]
+    assert "maniskill_pnp.scenes.meshes" in graph["maniskill_pnp.scenes.objects"]
     assert import_cycles({"a": {"b": 1}, "b": {"c": 1}, "c": {"a": 1}, "d": {"a": 1}}) == [["a", "b", "c"]]
 
 
 @pytest.mark.parametrize("low, high", [
     ("maniskill_pnp.agents.pixel.equivariant", "maniskill_pnp.agents.pixel.fcn"),
-    ("maniskill_pnp.tasks.meshes", "maniskill_pnp.tasks.objects"),
+    ("maniskill_pnp.scenes.meshes", "maniskill_pnp.scenes.objects"),
 ])
 def test_one_way(low, high):
     """``high`` may import ``low``; ``low`` never imports ``high`` (what they share lives in a module below both)."""
     assert high not in import_graph()[low]
+
+
+#: The package's layers, lowest first: a module imports from its own layer and the layers below it, never above.
+LAYERS = ("planning", "cell", "scenes", "tasks", "agents", "bench", "cli")
+
+
+def layer(module: str) -> int | None:
+    """The rank of ``module``'s layer in :data:`LAYERS`, or None for the modules outside them (the package root,
+    shared helpers such as ``cache`` and ``runtime``, the env adapters, the demo and the quickstart)."""
+    parts = module.split(".")
+    return LAYERS.index(parts[1]) if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def test_layers_import_only_downwards():
+    """planning <- cell (workspace, bin, heightmaps) <- scenes (objects, clutter, scene files) <- tasks (the envs) <-
+    agents (learned and scripted) <- bench <- cli: nothing imports a layer above its own."""
+    graph = import_graph()
+    assert {module.split(".")[1] for module in graph if layer(module) is not None} == set(LAYERS)
+    upward = [f"{a} -> {b} (line {line})" for a, targets in graph.items() for b, line in targets.items()
+              if layer(a) is not None and layer(b) is not None and layer(b) > layer(a)]
+    assert not upward, "imports from a higher layer:\n" + "\n".join(upward)
+    assert layer("maniskill_pnp.agents.scripted.slide_oracle") > layer("maniskill_pnp.scenes.grasp_feasibility")
 
 
 def test_no_import_cycles():

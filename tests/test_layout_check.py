@@ -1,4 +1,4 @@
-"""Shape-exact layout validation (:mod:`maniskill_pnp.tasks.layout_check`): collision shapes instead of bounding boxes
+"""Shape-exact layout validation (:mod:`maniskill_pnp.scenes.layout_check`): collision shapes instead of bounding boxes
 for overlaps, the workspace and the table; touching objects checked by a short physics settle. No env is made."""
 
 from __future__ import annotations
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import sapien
 
-from maniskill_pnp.tasks.clutter import _obb, _obb_overlap, validate_layout
-from maniskill_pnp.tasks.layout_check import check_layout
-from maniskill_pnp.tasks.objects import ObjectSpec
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.scenes.clutter import _obb, _obb_overlap, validate_layout
+from maniskill_pnp.scenes.layout_check import check_layout
+from maniskill_pnp.scenes.objects import ObjectSpec
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 WS = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=4)
 CX, CY = WS.center

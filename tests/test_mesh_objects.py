@@ -12,12 +12,12 @@ import sapien
 import trimesh
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
-from maniskill_pnp.tasks import meshes
+from maniskill_pnp.scenes import meshes
 from maniskill_pnp.tasks.clutter_grasp import resolve_objects
-from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
-from maniskill_pnp.tasks.objects import ObjectSpec, add_collisions
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
-from maniskill_pnp.tasks.ycb import DOWNLOAD_COMMAND, ycb_dir, ycb_model_ids, ycb_spec, ycb_specs
+from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
+from maniskill_pnp.scenes.objects import ObjectSpec, add_collisions
+from maniskill_pnp.cell.workspace import WorkspaceSpec
+from maniskill_pnp.scenes.ycb import DOWNLOAD_COMMAND, ycb_dir, ycb_model_ids, ycb_spec, ycb_specs
 
 CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
 WS = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=4)

@@ -11,7 +11,7 @@ from torchrl.objectives import HardUpdate
 from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork, PixelQNetwork, padded_size
 from maniskill_pnp.agents.pixel.loss import PixelBCELoss, PixelDQNLoss
 from maniskill_pnp.agents.pixel.replay import make_pixel_replay, pack, pack_transition, unpack, unpack_transition
-from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+from maniskill_pnp.cell.pixel_action import PixelActionLayout
 
 H = W = 32
 R = 4

@@ -14,7 +14,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from maniskill_pnp.agents.pixel.loss import PixelDQNLoss
 from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
 from maniskill_pnp.agents.pixel.policy import GreedyPixelActor, PrimitiveExploreMask, make_pixel_policy
-from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+from maniskill_pnp.cell.pixel_action import PixelActionLayout
 
 H = W = 8
 R = 2
@@ -58,7 +58,7 @@ def test_grasps_only_on_material_slides_from_bare_table_towards_it():
 
 
 def test_slides_keep_clear_of_material_at_their_start_and_follow_the_workspace_direction():
-    from maniskill_pnp.tasks.workspace import WorkspaceSpec
+    from maniskill_pnp.cell.workspace import WorkspaceSpec
 
     rots, size = 4, 16
     height = torch.zeros(1, size, size)
@@ -81,7 +81,7 @@ def test_slides_keep_clear_of_material_at_their_start_and_follow_the_workspace_d
 
 
 def test_mask_for_workspace_converts_metres_to_pixels():
-    from maniskill_pnp.tasks.workspace import WorkspaceSpec
+    from maniskill_pnp.cell.workspace import WorkspaceSpec
 
     ws = WorkspaceSpec(heightmap_size=64, pixel_size=0.007, num_rotations=16)
     mask = HeightmapActionMask.for_workspace(("grasp", "left_slide"), ws)
@@ -105,7 +105,7 @@ def test_bad_mask_options_raise(kwargs):
 
 
 def test_grasp_fit_masks_grasps_whose_open_fingers_would_strike_the_map():
-    from maniskill_pnp.tasks.workspace import WorkspaceSpec
+    from maniskill_pnp.cell.workspace import WorkspaceSpec
 
     px, size = 0.007, 32
     ws = WorkspaceSpec(heightmap_size=size, pixel_size=px, num_rotations=4)
@@ -130,7 +130,7 @@ def test_grasp_fit_masks_grasps_whose_open_fingers_would_strike_the_map():
 
 
 def test_grasp_fit_falls_back_to_material_where_no_grasp_fits():
-    from maniskill_pnp.tasks.workspace import WorkspaceSpec
+    from maniskill_pnp.cell.workspace import WorkspaceSpec
 
     ws = WorkspaceSpec(heightmap_size=32, pixel_size=0.007, num_rotations=4)
     block = torch.zeros(1, 32, 32)

@@ -8,9 +8,9 @@ import sapien
 
 from maniskill_pnp.planning import MotionPrimitives, PlanCache, SegmentResult, grasp_pose
 from maniskill_pnp.planning.primitives import PlaceRegion
-from maniskill_pnp.tasks.bin import BinSpec
-from maniskill_pnp.tasks.clutter import object_status
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.cell.bin import BinSpec
+from maniskill_pnp.scenes.clutter import object_status
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 from maniskill_pnp.planning.trajectory import densify, time_parameterize
 
 STATIC = {"table-workspace", "ground", "bin"}

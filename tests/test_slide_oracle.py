@@ -1,4 +1,4 @@
-"""The oracles that see the objects' shapes (maniskill_pnp.tasks.slide_oracle): on a locked row the grasp-only
+"""The oracles that see the objects' shapes (maniskill_pnp.agents.scripted.slide_oracle): on a locked row the grasp-only
 oracle has no feasible grasp, the slide-then-grasp oracle slides the end bar free, the task's "unlock" judgement
 agrees, and the next choice is a feasible grasp that succeeds; guarded at 20 N throughout."""
 
@@ -9,9 +9,9 @@ import pytest
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
 from maniskill_pnp.bench.clutter_oracle import ClutterOracleBenchConfig, run
-from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES
-from maniskill_pnp.tasks.slide_oracle import FeasibleGraspOracle
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.scenes.complicated_layouts import COMPLICATED_LAYOUT_NAMES
+from maniskill_pnp.agents.scripted.slide_oracle import FeasibleGraspOracle
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
 WS = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=16)

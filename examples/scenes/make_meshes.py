@@ -1,7 +1,7 @@
 """Write the mesh files of the example scene ``mesh_parts.yaml`` into ``meshes/`` (next to this script).
 
 Three small machined-looking parts, each watertight and non-convex (so the package decomposes each into convex
-collision parts with CoACD), each within the gripper's limits (``maniskill_pnp.tasks.objects``: at least 2 cm high,
+collision parts with CoACD), each within the gripper's limits (``maniskill_pnp.scenes.objects``: at least 2 cm high,
 at most 7 cm across at the footprint's narrowest, no side over 12 cm):
 
 * ``channel_bracket.stl``: a U channel (a base plate and two flanges) lying open side up, in **millimetres**, as CAD

@@ -1,9 +1,9 @@
 """Benchmark of the clutter tasks with a scripted oracle: grasp success, completion and the cost of one step.
 
 Runs seeded scenes to the end with one of the oracles of :data:`ORACLES`: ``heightmap``
-(:class:`~maniskill_pnp.tasks.clutter_oracle.HeightmapGraspOracle`: highest pixel of an isolated object, jaws across
+(:class:`~maniskill_pnp.agents.scripted.clutter_oracle.HeightmapGraspOracle`: highest pixel of an isolated object, jaws across
 its shorter side, on ClutterGrasp-v1), ``grasp-only`` and ``slide-then-grasp``
-(:class:`~maniskill_pnp.tasks.slide_oracle.FeasibleGraspOracle`, which see the objects' shapes and poses: grasps
+(:class:`~maniskill_pnp.agents.scripted.slide_oracle.FeasibleGraspOracle`, which see the objects' shapes and poses: grasps
 where the grasp check finds one, and, for the second, a slide that frees a locked object where none does, on
 ClutterGraspSlide-v1), and prints the metrics of ``docs/metrics.md``
 (``success_rate``, ``grasp_success``, ``completion``, ``action_efficiency``, counted as ``eval-clutter`` counts them)
@@ -25,8 +25,8 @@ from maniskill_pnp.agents.pixel.evaluate import EpisodeTally, summarize
 from maniskill_pnp.agents.pixel.factories import scenario_layout_files
 from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.runtime import default_backends
-from maniskill_pnp.tasks.clutter_oracle import HeightmapGraspOracle
-from maniskill_pnp.tasks.slide_oracle import FeasibleGraspOracle
+from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
+from maniskill_pnp.agents.scripted.slide_oracle import FeasibleGraspOracle
 
 #: The oracles: name -> the task it plays.
 ORACLES = {"heightmap": "ClutterGrasp-v1", "grasp-only": "ClutterGraspSlide-v1", "slide-then-grasp": "ClutterGraspSlide-v1"}

@@ -95,7 +95,7 @@ def random_action(obs: dict, env, rng: np.random.Generator, mask) -> int:
 def run(cfg: SoakBenchConfig) -> dict:
     from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
     from maniskill_pnp.tasks.clutter_grasp_slide import ClutterGraspSlideEnv
-    from maniskill_pnp.tasks.workspace import WorkspaceSpec
+    from maniskill_pnp.cell.workspace import WorkspaceSpec
 
     side = WorkspaceSpec().side
     workspace = WorkspaceSpec(heightmap_size=cfg.heightmap_size, pixel_size=side / cfg.heightmap_size, num_rotations=cfg.num_rotations)

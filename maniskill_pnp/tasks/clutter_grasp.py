@@ -5,13 +5,13 @@ grasps at that pixel's 3-D point with that yaw (:meth:`WorkspaceSpec.grasp_tcp_h
 a grasped object in the bin, and returns to a home pose out of the cameras' view; then both cameras are
 rendered and fused into the next heightmaps.
 
-Objects: a pool of procedural objects (:class:`~maniskill_pnp.tasks.clutter_pool.ClutterPool`) is built once,
+Objects: a pool of procedural objects (:class:`~maniskill_pnp.scenes.clutter_pool.ClutterPool`) is built once,
 with a fixed library seed; each episode draws ``num_objects`` of them, drops them into the workspace and lets them
-settle. ``objects="ycb"`` (ManiSkill's YCB models that fit the gripper, :mod:`~maniskill_pnp.tasks.ycb`) or
-``objects=[...]`` (YCB model ids and/or :class:`~maniskill_pnp.tasks.objects.ObjectSpec`, e.g. mesh files) fill the
+settle. ``objects="ycb"`` (ManiSkill's YCB models that fit the gripper, :mod:`~maniskill_pnp.scenes.ycb`) or
+``objects=[...]`` (YCB model ids and/or :class:`~maniskill_pnp.scenes.objects.ObjectSpec`, e.g. mesh files) fill the
 pool from those instead. Pool objects not in the episode wait on the floor far from the robot and the cameras. With ``layout=`` the
 pool is exactly the layout's objects, placed at its poses every episode; ``layout_file=`` reads such layouts from
-scene files (:mod:`~maniskill_pnp.tasks.scene_file`), and :meth:`ClutterGraspEnv.export_scene` writes the current
+scene files (:mod:`~maniskill_pnp.scenes.scene_file`), and :meth:`ClutterGraspEnv.export_scene` writes the current
 scene as one.
 
 Batched: with ManiSkill's GPU simulation (``num_envs > 1``) every sub-scene draws its own clutter from the same
@@ -50,17 +50,17 @@ from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion, Program
 from maniskill_pnp.planning.primitives import MotionPrimitives, check_guard_force, grasp_pose
 from maniskill_pnp.planning.robot import panda_spec
-from maniskill_pnp.tasks.bin import build_bin
-from maniskill_pnp.tasks.clutter import density_range, validate_layout
-from maniskill_pnp.tasks.clutter_pool import ClutterPool, SettleSpec
-from maniskill_pnp.tasks.heightmap import heightmaps_from_sensors
-from maniskill_pnp.tasks.objects import KINDS, ObjectSpec
-from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+from maniskill_pnp.cell.bin import build_bin
+from maniskill_pnp.scenes.clutter import density_range, validate_layout
+from maniskill_pnp.scenes.clutter_pool import ClutterPool, SettleSpec
+from maniskill_pnp.cell.heightmap import heightmaps_from_sensors
+from maniskill_pnp.scenes.objects import KINDS, ObjectSpec
+from maniskill_pnp.cell.pixel_action import PixelActionLayout
 from maniskill_pnp.tasks.primitive_env import Decision, Judgement, PrimitiveStepEnv
 from maniskill_pnp.tasks.registration import register_task
-from maniskill_pnp.tasks.scene_file import load_scene, save_scene
-from maniskill_pnp.tasks.view_volume import ViewVolumes
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.scenes.scene_file import load_scene, save_scene
+from maniskill_pnp.cell.view_volume import ViewVolumes
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 ROBOT_BASE = (-0.615, 0.0, 0.0)
 logger = logging.getLogger(__name__)
@@ -74,7 +74,7 @@ def resolve_objects(objects) -> tuple[ObjectSpec, ...]:
         ValueError: another value, an unknown or unfit YCB model, or no object at all.
         FileNotFoundError: YCB models asked for without ManiSkill's YCB assets (the message gives the download command).
     """
-    from maniskill_pnp.tasks.ycb import YCB_SOURCE, ycb_spec, ycb_specs
+    from maniskill_pnp.scenes.ycb import YCB_SOURCE, ycb_spec, ycb_specs
 
     if isinstance(objects, str):
         if objects != YCB_SOURCE:
@@ -118,7 +118,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
 
     **Randomizations:**
     - which pool objects form the clutter and how many (``num_objects``: an int, a (min, max) range, or a
-      density preset name of :data:`~maniskill_pnp.tasks.clutter.DENSITY_PRESETS`)
+      density preset name of :data:`~maniskill_pnp.scenes.clutter.DENSITY_PRESETS`)
     - their xy positions and yaws (loosely packed: footprints ``min_gap`` apart) or full poses (any packing),
       then a physics settle; with ``packed_fraction`` that share of episodes packs them upright into tight clusters
       a few millimetres apart instead (``clutter.packed`` says which envs got one)
@@ -174,9 +174,9 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     ):
         """Args beyond ManiSkill's: ``workspace`` (geometry, cameras, bin), ``num_objects``, ``object_kinds``,
         ``loosely_packed`` and ``min_gap`` (clutter), ``packed_fraction`` (share of random clutters packed into tight
-        clusters instead, see :func:`~maniskill_pnp.tasks.clutter.sample_packed`), ``hard_fraction`` (share of random
+        clusters instead, see :func:`~maniskill_pnp.scenes.clutter.sample_packed`), ``hard_fraction`` (share of random
         clutters replaced by one of the hard *training* arrangements of
-        :func:`~maniskill_pnp.tasks.hard_scenes.hard_train_files`, at a random yaw; never the test set's),
+        :func:`~maniskill_pnp.scenes.hard_scenes.hard_train_files`, at a random yaw; never the test set's),
         ``layout`` (explicit list of (ObjectSpec, pose); overrides the
         random clutter), ``layout_file`` (a scene file, or a list of them: one layout each, episodes draw among them;
         not with ``layout``), ``objects`` (what random clutters are made of instead of procedural ``object_kinds``:
@@ -457,7 +457,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
 
     def _hard_training_layouts(self) -> list[list[tuple[ObjectSpec, sapien.Pose]]]:
         """The hard training arrangements (``hard_fraction``), in this task's workspace."""
-        from maniskill_pnp.tasks.hard_scenes import hard_train_files
+        from maniskill_pnp.scenes.hard_scenes import hard_train_files
 
         return [load_scene(f, self.workspace) for f in hard_train_files()]
 
@@ -480,9 +480,9 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     def export_scene(self, path, env_idx: int = 0, *, frame: str = "workspace", name: str | None = None,
                      description: str | None = None, orientation: str = "quaternion") -> Path:
         """Write env ``env_idx``'s objects still in the workspace, at their current poses, as the scene file ``path``
-        (YAML or JSON by its extension; :func:`~maniskill_pnp.tasks.scene_file.save_scene`), to replay it with
+        (YAML or JSON by its extension; :func:`~maniskill_pnp.scenes.scene_file.save_scene`), to replay it with
         ``layout_file=``. Objects in the bin or lost are left out. The layout is validated by its shapes as any other
-        (:func:`~maniskill_pnp.tasks.clutter.validate_layout`: objects at rest pass it); call it between steps or
+        (:func:`~maniskill_pnp.scenes.clutter.validate_layout`: objects at rest pass it); call it between steps or
         after a reset, when the objects are at rest.
 
         Raises:
@@ -576,7 +576,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     @contextmanager
     def _unseen_bodies_hidden(self):
         """Leave out of the sensor render every body whose bounding box lies outside every camera's view volume of the
-        workspace (:class:`~maniskill_pnp.tasks.view_volume.ViewVolumes`): the robot at home, the parked pool objects,
+        workspace (:class:`~maniskill_pnp.cell.view_volume.ViewVolumes`): the robot at home, the parked pool objects,
         the floor. The heightmaps are then the same bit for bit, and lavapipe renders the two cameras in a little over half
         of the time. Raw camera data (``include_camera_data``) and GPU-batched renders show everything."""
         if self.include_camera_data or self.gpu_sim_enabled:

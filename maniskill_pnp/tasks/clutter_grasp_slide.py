@@ -1,7 +1,7 @@
 """ClutterGraspSlide-v1: grasp and slide ("G&S") in any clutter, tightly packed allowed (thesis part III).
 
 ClutterGrasp-v1 with two more primitives. The action is one flat index over (primitive, rotation, row, col),
-primitives ``grasp``, ``left_slide`` and ``right_slide`` (:class:`~maniskill_pnp.tasks.pixel_action.PixelActionLayout`
+primitives ``grasp``, ``left_slide`` and ``right_slide`` (:class:`~maniskill_pnp.cell.pixel_action.PixelActionLayout`
 with 3 primitives). A grasp is ClutterGrasp-v1's grasp-and-place. A slide lowers the closed fingertips at the
 pixel's 3-D point (:meth:`WorkspaceSpec.slide_tip_height`: the highest surface within ``slide_clearance`` of the
 pixel, so the tip comes down beside objects) and pushes ``slide_length`` (8 cm) straight to the left or right of
@@ -19,7 +19,7 @@ counts the objects, ``info["reason"]`` says so): otherwise clearing the table by
 Reward schemes (:data:`REWARD_SCHEMES`): ``"default"`` pays a slide for any change, as VPG does;
 ``"no_slide_reward"`` never; ``"unlock"`` pays it by its effect: only when it changed the scene *and* made an
 object graspable that was not (``info["slide_unlocked"]``: objects near the ones it moved that were *locked*
-before it and are not after, by :func:`~maniskill_pnp.tasks.grasp_feasibility.grasp_feasibility` on the objects'
+before it and are not after, by :func:`~maniskill_pnp.scenes.grasp_feasibility.grasp_feasibility` on the objects'
 collision shapes at their poses, on the grid of :data:`UNLOCK_CHECK`). A slide that merely shuffles objects that a
 grasp could take anyway, or pushes a locked block as a whole, then earns nothing.
 """
@@ -28,10 +28,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from maniskill_pnp.tasks.clutter import validate_layout
+from maniskill_pnp.scenes.clutter import validate_layout
 from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv
-from maniskill_pnp.tasks.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
-from maniskill_pnp.tasks.grasp_feasibility import grasp_feasibility
+from maniskill_pnp.scenes.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
+from maniskill_pnp.scenes.grasp_feasibility import grasp_feasibility
 from maniskill_pnp.tasks.primitive_env import Judgement
 from maniskill_pnp.tasks.registration import register_task
 
@@ -93,7 +93,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
       ``"medium"`` 15–20, ``"max"`` 25–30), dropped at random orientations that may pile up
       (``loosely_packed=False`` by default); ``packed_fraction`` packs that share of them into tight clusters
     - or ``layout="complicated"`` (or ``num_objects="complicated"``): one of the hand-designed locking layouts
-      of :mod:`~maniskill_pnp.tasks.complicated_layouts` per episode, a seeded draw unless
+      of :mod:`~maniskill_pnp.scenes.complicated_layouts` per episode, a seeded draw unless
       ``complicated_index`` (or ``reset(options={"layout_index": k})``) fixes it
     - or ClutterGrasp-v1's explicit ``layout=`` list, or ``layout_file=`` scene files
 

@@ -32,7 +32,7 @@ from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from maniskill_pnp.planning.lockstep import LockstepExecutor, Motion
 from maniskill_pnp.planning.primitives import MotionPrimitives, PrimitiveResult, grasp_pose
 from maniskill_pnp.planning.robot import panda_spec
-from maniskill_pnp.tasks.bin import build_bin
+from maniskill_pnp.cell.bin import build_bin
 from maniskill_pnp.tasks.primitive_env import Decision, Judgement, PrimitiveStepEnv
 from maniskill_pnp.tasks.registration import register_task
 from maniskill_pnp.tasks.conveyor_config import (

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from maniskill_pnp.tasks.bin import BinSpec
+from maniskill_pnp.cell.bin import BinSpec
 
 PHASES = ("initial", "pre_pick", "grasp", "done")
 #: What the task's ``info`` says for a speed or alignment not sensed yet (ManiSkill's numpy wrappers cannot carry

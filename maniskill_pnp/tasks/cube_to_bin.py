@@ -19,7 +19,7 @@ from mani_skill.utils.building import actors
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from mani_skill.utils.structs.pose import Pose
 
-from maniskill_pnp.tasks.bin import BinSpec, build_bin
+from maniskill_pnp.cell.bin import BinSpec, build_bin
 from maniskill_pnp.tasks.registration import SeededNpRandom, register_task
 
 ROBOT_BASE = (-0.615, 0.0, 0.0)

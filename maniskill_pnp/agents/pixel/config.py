@@ -85,12 +85,12 @@ class ClutterConfig(RunConfig):
     """Objects dropped into the workspace each episode."""
     packed_fraction: float = 0.0
     """Share of training episodes whose objects are packed into tight clusters instead of dropped (so that slides have
-    something to pull apart; see maniskill_pnp.tasks.clutter.sample_packed); evaluation scenes other than "train" are
+    something to pull apart; see maniskill_pnp.scenes.clutter.sample_packed); evaluation scenes other than "train" are
     never packed."""
     hard_fraction: float = 0.0
     """Share of training episodes that play one of the hard training arrangements (tightly packed rows and blocks,
     at least half of their objects locked; a set disjoint from the ``hard`` test scenes, see
-    maniskill_pnp.tasks.hard_scenes) at a random yaw, instead of a random clutter."""
+    maniskill_pnp.scenes.hard_scenes) at a random yaw, instead of a random clutter."""
     guard_force: float | None = None
     """Guarded grasps and slides (N): a descent stops, and the action fails, when contacts push the gripper up by
     more than this, as a real Panda's collision reflex would (20 N: libfranka's example threshold); None: unguarded.

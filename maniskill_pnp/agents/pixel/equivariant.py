@@ -44,7 +44,7 @@ Output fields:
   one-element kernel bases fail to build on this torch, which the quotient output hits at ``R = 2``). A DQN update
   of one jaw orientation is an update of both. (An odd ``R`` has no opposite rotation: its grasp net is not tied.)
 
-Rotation convention. Rotation ``r`` is the one of :class:`~maniskill_pnp.tasks.workspace.WorkspaceSpec`: the jaws
+Rotation convention. Rotation ``r`` is the one of :class:`~maniskill_pnp.cell.workspace.WorkspaceSpec`: the jaws
 close along ``yaw = r * 2*pi / R`` from world x, where the heightmap's col axis is world x and its row axis world y.
 ``torch.rot90(x, 1, dims=(-2, -1))`` moves pixel ``(row, col)`` to ``(S-1-col, row)``: in centred coordinates
 ``(x, y) -> (y, -x)``, a rotation of the scene by -90 degrees about world z. The grasp with yaw ``theta`` at a pixel

@@ -17,7 +17,7 @@ count), an object count such as ``"10"``, a density preset of the task (``"min"`
 ``"hard"`` (the 24 generated tightly packed scenes and the 8 locking layouts, episode ``i`` on file ``i mod 32``: run
 at least 32 episodes to play them all);
 see :data:`~maniskill_pnp.agents.pixel.factories.SCENARIOS`. Scene files of the user's own arrangements
-(``layout_file``, :mod:`~maniskill_pnp.tasks.scene_file`) are one more scenario, after those: its row is named
+(``layout_file``, :mod:`~maniskill_pnp.scenes.scene_file`) are one more scenario, after those: its row is named
 after the files' stems (joined by ``+``), and episode ``i`` is played on file ``i mod (number of files)`` (seed
 ``seed + i``); the file of each episode is in its ``layout`` column. Without ``scenarios``, ``"train"`` is
 evaluated, or only the layout files when there are some.
@@ -74,8 +74,8 @@ from maniskill_pnp.agents.pixel.metrics import is_grasp_attempt
 from maniskill_pnp.agents.pixel.policy import GreedyPixelActor
 from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
 from maniskill_pnp.runtime import resolve_device
-from maniskill_pnp.tasks.pixel_action import PixelActionLayout
-from maniskill_pnp.tasks.scene_file import read_scene
+from maniskill_pnp.cell.pixel_action import PixelActionLayout
+from maniskill_pnp.scenes.scene_file import read_scene
 
 #: Longest run of consecutive failed grasps a completed episode may contain (VPG's completion criterion).
 MAX_FAILURE_RUN = 10

@@ -21,12 +21,12 @@ from maniskill_pnp.agents.pixel.config import ClutterConfig
 from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork
 from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
 from maniskill_pnp.agents.pixel.policy import GreedyPixelActor, make_pixel_policy
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 #: Scenes an agent can be run on besides a positive object count: ``"train"`` (the config's object count), a
 #: density preset of the task (``"min"``, ``"medium"``, ``"max"``) or ``"complicated"`` (ClutterGraspSlide-v1's
 #: hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset) or ``"hard"`` (the scene files of
-#: :func:`~maniskill_pnp.tasks.hard_scenes.hard_layout_files`: 24 generated tightly packed scenes, at least half of
+#: :func:`~maniskill_pnp.scenes.hard_scenes.hard_layout_files`: 24 generated tightly packed scenes, at least half of
 #: their objects locked, and the 8 locking layouts; episode i plays file i mod 32).
 SCENARIOS = ("train", "min", "medium", "max", "complicated", "hard")
 
@@ -53,7 +53,7 @@ def scenario_layout_files(name: str) -> list[Path] | None:
     """The scene files a scenario plays, one per episode in turn (``"hard"``), else None (drawn scenes)."""
     if name != "hard":
         return None
-    from maniskill_pnp.tasks.hard_scenes import hard_layout_files
+    from maniskill_pnp.scenes.hard_scenes import hard_layout_files
 
     return hard_layout_files()
 

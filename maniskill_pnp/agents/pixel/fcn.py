@@ -12,13 +12,13 @@ one Q map per rotation, ``(B, R, H, W)``. Its structure follows the thesis (and 
 * bilinear upsampling to the padded resolution, aligned so each pixel reads the features centred on it
   (:meth:`PixelQNetwork.upsample`), rotation back, and a centre crop to ``H x W``.
 
-Rotation ``r`` is the one of :class:`~maniskill_pnp.tasks.workspace.WorkspaceSpec`: jaws closing along
+Rotation ``r`` is the one of :class:`~maniskill_pnp.cell.workspace.WorkspaceSpec`: jaws closing along
 ``yaw = r * 2*pi / R`` from world x, where the heightmap's col axis is world x and its row axis world y.
 
 :class:`MultiPrimitiveQNetwork` holds one Q network per primitive (grasp; left slide; right slide), a
 :class:`PixelQNetwork` or, with the ``"equivariant"`` backbone, an
 :class:`~maniskill_pnp.agents.pixel.equivariant.EquivariantPixelQNetwork`, and stacks their maps to
-``(B, P, R, H, W)``, whose row-major flat index is the one of :class:`~maniskill_pnp.tasks.pixel_action.PixelActionLayout`.
+``(B, P, R, H, W)``, whose row-major flat index is the one of :class:`~maniskill_pnp.cell.pixel_action.PixelActionLayout`.
 
 Backbones (``backbone=``):
 
@@ -52,7 +52,7 @@ import torchvision
 from torch import nn
 
 from maniskill_pnp.agents.pixel.rotations import rotation_query
-from maniskill_pnp.tasks.pixel_action import PixelActionLayout
+from maniskill_pnp.cell.pixel_action import PixelActionLayout
 
 #: ImageNet statistics, used to normalise both trunks' inputs (as torchvision's pretrained weights expect).
 IMAGENET_MEAN = (0.485, 0.456, 0.406)

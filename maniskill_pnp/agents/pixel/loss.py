@@ -3,7 +3,7 @@
 Both losses take a Q network mapping heightmaps ``(B, 4, H, W)`` to maps ``(B, *action_shape)`` (a
 :class:`~maniskill_pnp.agents.pixel.fcn.PixelQNetwork` gives ``(R, H, W)``, a
 :class:`~maniskill_pnp.agents.pixel.fcn.MultiPrimitiveQNetwork` ``(P, R, H, W)``); the action is the row-major flat
-index of those maps, i.e. :class:`~maniskill_pnp.tasks.pixel_action.PixelActionLayout`'s index.
+index of those maps, i.e. :class:`~maniskill_pnp.cell.pixel_action.PixelActionLayout`'s index.
 
 Only the executed pixel enters the loss, so every other pixel of the maps gets exactly zero gradient (thesis).
 

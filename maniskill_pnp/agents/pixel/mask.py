@@ -7,20 +7,20 @@ all range over the actions that can change something. It changes no reward and l
 remaining actions; on a 64 px map of 10 objects it removes about 90% of the grasps and 93% of the slides.
 
 A slide is allowed where its start is bare table (nothing within ``slide_clear_px``, so the closed fingertips come
-down to their lowest height, :meth:`~maniskill_pnp.tasks.workspace.WorkspaceSpec.slide_tip_height`) and material lies
+down to their lowest height, :meth:`~maniskill_pnp.cell.workspace.WorkspaceSpec.slide_tip_height`) and material lies
 ahead on its path, within ``slide_ahead_px`` along the push direction of its rotation and side
-(:meth:`~maniskill_pnp.tasks.workspace.WorkspaceSpec.slide_direction`). A start merely *near* material is not
+(:meth:`~maniskill_pnp.cell.workspace.WorkspaceSpec.slide_direction`). A start merely *near* material is not
 enough: the greedy policy of an early G&S run repeated a slide that began beside an object and pushed away from it.
 
 With ``grasp_fit`` a grasp must also *fit* where the heightmap shows it (the "predicted to fail" masks of SPOT):
 the open Panda gripper (its fingers' collision boxes and its hand's hull, from the robot's URDF) lowered straight down
-to the grasp's fingertip height (:meth:`~maniskill_pnp.tasks.workspace.WorkspaceSpec.grasp_tcp_height` of the height at
+to the grasp's fingertip height (:meth:`~maniskill_pnp.cell.workspace.WorkspaceSpec.grasp_tcp_height` of the height at
 the pixel) must stay above every height of the map under it, within ``fit_tolerance``. A grasp whose fingers would
 strike a neighbour (an object in a row pressed against others, a 1-3 mm gap that the map cannot resolve) or land on
 the object itself (wider than the open jaws) is masked out, so a grasp-and-slide agent facing a locked arrangement
 has only its slides left. Where no grasp fits and no other primitive may act (a grasp-only agent, or no slide
 starts anywhere), the grasps fall back to the material test, so the agent still acts. It is the heightmap's view
-of :mod:`~maniskill_pnp.tasks.grasp_feasibility` (which sees the collision shapes): no object state, only what the
+of :mod:`~maniskill_pnp.scenes.grasp_feasibility` (which sees the collision shapes): no object state, only what the
 camera shows.
 
 The mask is a pure function of the height channel, so it costs no replay storage: the actor computes it from the
@@ -41,7 +41,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from maniskill_pnp.tasks.workspace import WorkspaceSpec
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 #: Default tolerance (m) of the grasp-fit test: a finger may come this close above a height of the map (its noise).
 FIT_TOLERANCE = 0.003
@@ -133,9 +133,9 @@ class HeightmapActionMask:
         lowest height above the fingertip TCP over each (m). ``closing[r]`` ``(2, 3, S)``: for each pad (+y, -y), three
         lines across its width (its two edges and middle) from its inner face towards the other pad, ``S`` cells half a
         pixel apart. ``reach`` is the largest offset (pixels), ``model`` the
-        :class:`~maniskill_pnp.tasks.grasp_feasibility.GripperModel`. Rotation ``r`` closes the jaws along
+        :class:`~maniskill_pnp.scenes.grasp_feasibility.GripperModel`. Rotation ``r`` closes the jaws along
         ``r * 360° / num_rotations`` from the column axis."""
-        from maniskill_pnp.tasks.grasp_feasibility import panda_gripper
+        from maniskill_pnp.scenes.grasp_feasibility import panda_gripper
 
         model = panda_gripper()
         points = model.points  # x along the pads' width, y the closing direction, lowest height above the TCP
@@ -176,10 +176,10 @@ class HeightmapActionMask:
            ``fit_tolerance``), and
         2. closing would bear on material: along each pad's two edges and middle, closing from its inner face meets
            material that reaches into the pads' height band, and where it is met differs across the pad's width by
-           at most the friction slope of :mod:`~maniskill_pnp.tasks.grasp_feasibility` plus a pixel (a corner
+           at most the friction slope of :mod:`~maniskill_pnp.scenes.grasp_feasibility` plus a pixel (a corner
            pinched obliquely is no grasp).
         """
-        from maniskill_pnp.tasks.grasp_feasibility import FRICTION, MIN_GRIP
+        from maniskill_pnp.scenes.grasp_feasibility import FRICTION, MIN_GRIP
 
         n, h, w = height.shape
         reach, descent, closing, model = self._gripper

@@ -2,7 +2,7 @@
 
 Both :class:`~maniskill_pnp.agents.pixel.fcn.PixelQNetwork` and
 :class:`~maniskill_pnp.agents.pixel.equivariant.EquivariantPixelQNetwork` give ``R`` Q maps per heightmap, rotation
-``r`` being the jaw direction ``yaw = r * 2*pi / R`` of :class:`~maniskill_pnp.tasks.workspace.WorkspaceSpec`; this
+``r`` being the jaw direction ``yaw = r * 2*pi / R`` of :class:`~maniskill_pnp.cell.workspace.WorkspaceSpec`; this
 module checks the rotation indices of their ``rotation_maps`` queries. It imports neither network, so that both can
 import it (:mod:`~maniskill_pnp.agents.pixel.fcn` imports :mod:`~maniskill_pnp.agents.pixel.equivariant`, never the
 reverse).

@@ -26,7 +26,7 @@ from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_po
 from maniskill_pnp.agents.run_io import require_positive, write_json
 from maniskill_pnp.agents.video_frames import even_frame, label
 from maniskill_pnp.runtime import resolve_device
-from maniskill_pnp.tasks.scene_file import read_scene
+from maniskill_pnp.scenes.scene_file import read_scene
 
 #: Side (px) of each heightmap / Q-map panel in the video and the strip.
 PANEL = 256
