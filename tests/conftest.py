@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import gymnasium as gym
 import pytest
 import torch
@@ -9,6 +11,12 @@ import torch
 import maniskill_pnp  # noqa: F401  (registers the tasks)
 
 CPU = dict(sim_backend="physx_cpu", render_backend="cpu")
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # pytest-xdist runs one test process per core: one torch thread each (their subprocesses inherit it through
+    # OMP_NUM_THREADS), so that two processes do not each spin two threads on two cores.
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    torch.set_num_threads(1)
 
 
 def pytest_collection_modifyitems(config, items):
@@ -46,13 +54,14 @@ def wall_env():
 
 @pytest.fixture(scope="session")
 def tiny_clutter_run(tmp_path_factory):
-    """A run folder trained for two grasps: 32 px heightmaps, 2 rotations, 2 objects, the small backbone."""
+    """A run folder trained for two grasps: 32 px heightmaps, 2 rotations, 2 objects, the small backbone, collected
+    in this process (the tests that use it read the folder; worker-process collection is tested in test_collection)."""
     from maniskill_pnp.agents.pixel.config import ClutterConfig
     from maniskill_pnp.agents.pixel.recipe import main as train
 
     out = tmp_path_factory.mktemp("clutter_runs")
     cfg = ClutterConfig.from_preset("cpu-small", heightmap_size=32, num_rotations=2, num_objects=2, steps=2,
-                                    checkpoint_interval=2, log_interval=1, out=out)
+                                    checkpoint_interval=2, log_interval=1, collector="direct", out=out)
     summary = train(cfg)
     assert summary["steps"] == 2
     return cfg.run_dir

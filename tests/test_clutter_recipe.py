@@ -140,10 +140,13 @@ def test_explore_weights_need_one_weight_per_primitive():
 
 
 def _train(out, steps: int, *extra: str, preset: str = "cpu-small") -> dict:
+    """``train-clutter`` as a subprocess with tiny settings, collecting in its own process (``--collector direct``:
+    these tests are about checkpoints, resume and losses; the default worker-process collector, its resume included,
+    is tested in test_collection)."""
     cmd = [
         sys.executable, "-m", "maniskill_pnp.cli", "train-clutter", "--preset", preset, "--heightmap-size", "32",
         "--num-rotations", "2", "--num-objects", "2", "--steps", str(steps), "--checkpoint-interval", "2",
-        "--log-interval", "1", "--out", str(out), *extra,
+        "--log-interval", "1", "--collector", "direct", "--out", str(out), *extra,
     ]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]

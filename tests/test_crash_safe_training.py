@@ -15,8 +15,10 @@ from maniskill_pnp.agents.pixel.checkpoint import load_checkpoint
 from maniskill_pnp.agents.pixel.curves import load_actions
 
 STEPS, INTERVAL = 8, 2
+#: Tiny settings, collected in the learner's process: what a kill can tear is the learner's checkpoint, whichever
+#: collector fed it (the worker-process collector's resume is tested in test_collection).
 ARGS = ["--preset", "cpu-small", "--heightmap-size", "32", "--num-rotations", "2", "--num-objects", "2",
-        "--steps", str(STEPS), "--checkpoint-interval", str(INTERVAL), "--log-interval", "1"]
+        "--steps", str(STEPS), "--checkpoint-interval", str(INTERVAL), "--log-interval", "1", "--collector", "direct"]
 
 
 def _cmd(out, *extra):
