@@ -68,10 +68,11 @@ def test_bad_bench_options_are_clear_errors(argv, message, tmp_path):
 
 
 def test_training_throughput_trains_each_variant_in_turn(tmp_path, capsys):
-    """Two tiny variants (one with a process collector whose worker steps the simulator beside the learner), each
-    trained for real for a few seconds: actions, updates per action as configured, a rate and the ratio table."""
+    """Two tiny variants (one collecting in the learner's process, one with a process collector whose worker steps
+    the simulator beside the learner), each trained for real for a few seconds: actions, updates per action as
+    configured, a rate and the ratio table."""
     tiny = "num_objects=2,heightmap_size=32,num_rotations=4,checkpoint_interval=1000"
-    variants = (f"cpu-small,{tiny}", f"cpu-equi,{tiny},collector=process,sync=false")
+    variants = (f"cpu-small,{tiny},collector=direct", f"cpu-equi,{tiny},collector=process,sync=false")
     out = tmp_path / "throughput.json"
     run_throughput(TrainingThroughputBenchConfig(variants=variants, minutes=0.1, updates_per_step=1, out=out))
     results = json.loads(out.read_text())["results"]
