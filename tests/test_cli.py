@@ -186,8 +186,9 @@ def jobs(tmp_path_factory):
     out = tmp_path_factory.mktemp("cli")
     (out / "empty_run").mkdir()
     j = Jobs(out, LANES)
-    # longest lanes first; CPU seconds measured on the 2-core machine: clutter lane 46, clutter-oracle 40,
-    # pixel-memory 30, conveyor lane 28, demo 26, bench conveyor 25, primitives 10, the rest 8-9 each (253 in all)
+    # longest lanes first; CPU seconds measured on a 2-core machine (2026-12-06): clutter lane 114 (train 45, record 25,
+    # eval 24, export 10, plot 10), clutter-oracle + scene-counts 59, conveyor lane 44, collection 33, pixel-memory 30,
+    # against 26, demo 24, env-overhead 23, decision-breakdown 19, bench conveyor 16, the rest 8-9 each (~450 in all)
     j.chain(("train-clutter", [*MODULE, "train-clutter", *TINY_CLUTTER, "--collector", "direct", "--out", "clutter"]),
             ("eval-clutter", [*MODULE, "eval-clutter", f"clutter/{CLUTTER_RUN}", "--episodes", "1", "--max-steps", "2",
                               "--out", "clutter_eval"]),
@@ -199,26 +200,26 @@ def jobs(tmp_path_factory):
     j.chain(("bench clutter-oracle", [*MODULE, "bench", "clutter-oracle", "--episodes", "1", "--scenario", "hard",
                                       "--guard-force", "20", "--out", "bench"]),
             ("bench scene-counts", [*MODULE, "bench", "scene-counts", "--scenes", "1", "--out", "bench"]))
-    j.chain(("bench pixel-memory", [*MODULE, "bench", "pixel-memory", "--rotations", "2", "--heightmap-size", "32",
-                                    "--num-primitives", "1", "--repeats", "1", "--threads", "1", "--out", "bench"]))
     j.chain(("train-conveyor", [*MODULE, "train-conveyor", "--steps", "30", "--log-interval", "6", "--out", "conveyor"]),
             ("eval-conveyor", [*MODULE, "eval-conveyor", f"conveyor/{CONVEYOR_RUN}", "--iterations", "1",
                                "--out", "conveyor_eval"]),
             ("record-conveyor", [*MODULE, "record-conveyor", f"conveyor/{CONVEYOR_RUN}", "--kind", "sphere", "--speed", "fast",
                                  "--frame-every", "4", "--out", "conveyor_video"]))
-    j.chain(("demo", [*MODULE, "demo", "--seed", "0", "--out", "demo"]))
+    j.chain(("bench collection", [*MODULE, "bench", "collection", "--task", "conveyor", "--workers", "1", "2",
+                                  "--frames", "4", "--out", "bench"]))
+    j.chain(("bench pixel-memory", [*MODULE, "bench", "pixel-memory", "--rotations", "2", "--heightmap-size", "32",
+                                    "--num-primitives", "1", "--repeats", "1", "--threads", "1", "--out", "bench"]))
+    # the cheapest benchmark with headline figures (one cube pick-and-place a side): --against is what is tested here
+    j.chain(("bench against", [*MODULE, "bench", "primitives", "--episodes", "1", "--against", "HEAD", "--rounds", "1",
+                               "--out", "bench_against"]))
+    j.chain(("demo", [*MODULE, "demo", "--seed", "0", "--frame-every", "8", "--out", "demo"]))
+    j.chain(("bench env-overhead", [*MODULE, "bench", "env-overhead", "--actions", "2", "--out", "bench"]))
+    j.chain(("bench decision-breakdown", [*MODULE, "bench", "decision-breakdown", "--actions", "2", "--out", "bench"]))
     j.chain(("bench conveyor", [*MODULE, "bench", "conveyor", "--steps", "30", "--iterations", "1", "--out", "bench_conveyor"]))
     j.chain(("bench primitives", [*MODULE, "bench", "primitives", "--episodes", "1", "--out", "bench"]))
     j.chain(("help", [sys.executable, "-c", HELP_DRIVER, *HELP_COMMANDS]))
     j.chain(("bad preset", [*SCRIPT, "train-clutter", "--preset", "nope"]))
     j.chain(("bad inputs", [sys.executable, "-c", BAD_INPUT_DRIVER, json.dumps(BAD_INPUTS)]))
-    j.chain(("bench env-overhead", [*MODULE, "bench", "env-overhead", "--actions", "2", "--out", "bench"]))
-    j.chain(("bench collection", [*MODULE, "bench", "collection", "--task", "conveyor", "--workers", "1", "2",
-                                  "--frames", "4", "--out", "bench"]))
-    j.chain(("bench decision-breakdown", [*MODULE, "bench", "decision-breakdown", "--actions", "2", "--out", "bench"]))
-    # the cheapest benchmark with headline figures (one cube pick-and-place a side): --against is what is tested here
-    j.chain(("bench against", [*MODULE, "bench", "primitives", "--episodes", "1", "--against", "HEAD", "--rounds", "1",
-                               "--out", "bench_against"]))
     j.chain(("bench decision-cost", [*MODULE, "bench", "decision-cost", "--backbone", "small", "--rotations", "2",
                                      "--heightmap-size", "32", "--num-primitives", "1", "--warmup", "1", "--repeats", "1",
                                      "--threads", "1", "--out", "bench"]))

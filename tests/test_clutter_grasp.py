@@ -99,7 +99,7 @@ def test_oracle_clears_a_loose_scene(env):
         assert {"objects_remaining", "num_actions", "consecutive_failures", "lost_objects", "stage", "reason"} <= set(info)
     assert terminated and info["objects_remaining"] == 0
     assert info["objects_in_bin"] >= 3 and info["lost_objects"] <= 1
-    assert grasps / steps >= 0.6
+    assert grasps / steps >= 0.6  # two misses in five at most: the oracle grasped 97.6% in random clutter (experiments.md)
 
 
 def test_consecutive_failures_truncate_through_gym_make(env):

@@ -1,12 +1,10 @@
 """The pixel actor (argmax layout, ε-greedy draws), presets, the training metrics (and their agreement with the
-evaluation), and the clutter DQN recipe as a subprocess smoke run with resume."""
+evaluation), and the clutter DQN recipe through its command line: a smoke run with resume, and the BCE baseline."""
 
 from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -140,17 +138,23 @@ def test_explore_weights_need_one_weight_per_primitive():
 
 
 def _train(out, steps: int, *extra: str, preset: str = "cpu-small") -> dict:
-    """``train-clutter`` as a subprocess with tiny settings, collecting in its own process (``--collector direct``:
-    these tests are about checkpoints, resume and losses; the default worker-process collector, its resume included,
-    is tested in test_collection)."""
-    cmd = [
-        sys.executable, "-m", "maniskill_pnp.cli", "train-clutter", "--preset", preset, "--heightmap-size", "32",
-        "--num-rotations", "2", "--num-objects", "2", "--steps", str(steps), "--checkpoint-interval", "2",
-        "--log-interval", "1", "--collector", "direct", "--out", str(out), *extra,
-    ]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads(proc.stdout[proc.stdout.index("{"):])
+    """``maniskill-pnp train-clutter`` with tiny settings, parsed and run by the command's own ``main`` in this
+    process (its JSON summary read back from stdout), collecting in the learner's process (``--collector direct``:
+    these tests are about checkpoints, resume and losses; the console script as a process is tested in test_cli, a
+    resume in a fresh process in test_crash_safe_training, the worker-process collector in test_collection)."""
+    import contextlib
+    import io
+
+    from maniskill_pnp.cli import main as cli
+
+    argv = ["train-clutter", "--preset", preset, "--heightmap-size", "32", "--num-rotations", "2", "--num-objects", "2",
+            "--steps", str(steps), "--checkpoint-interval", "2", "--log-interval", "1", "--collector", "direct",
+            "--out", str(out), *extra]
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        cli(argv)
+    text = printed.getvalue()
+    return json.loads(text[text.index("{"):])
 
 
 def test_smoke_run_then_resume(tmp_path):
