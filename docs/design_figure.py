@@ -16,7 +16,8 @@ BOXES = {
     "tasks": (0.2, 1.6, 3.4, 2.3, "#e3f1df", "maniskill_pnp.tasks", ["ConveyorProximity-v1: ray sensors", "ClutterGrasp-v1: RGB-D heightmap", "ClutterGraspSlide-v1: 3 primitives,", "  density presets, locking layouts", "one step = one planned primitive"]),
     "planning": (4.7, 1.6, 3.0, 2.3, "#fbe9d0", "maniskill_pnp.planning", ["IK (pinocchio) + FCL collisions", "OMPL RRT-Connect + simplify", "TOPP-RA timing, plan cache", "pick / place / slide / go_home"]),
     "torchrl": (4.7, 4.3, 3.0, 1.6, "#efe3f5", "TorchRL", ["ManiSkillTorchRLEnv, Collector", "prioritized replay (memmap)", "EGreedyModule, LossModule, loggers"]),
-    "agents": (8.5, 3.0, 3.4, 2.9, "#f6dede", "maniskill_pnp.agents", ["tabular Q-learning / SARSA", "pixel FCN Q maps (DenseNet-121,", "  ResNet-101, small) x rotations", "pixel DQN / BCE loss, action mask", "recipes: config, checkpoints, resume", "evaluation, curves, video"]),
+    "agents": (8.5, 3.0, 3.4, 2.9, "#f6dede", "maniskill_pnp.agents", ["tabular Q-learning / SARSA", "pixel FCN Q maps (DenseNet-121,", "  ResNet-101, small) x rotations", "pixel DQN / BCE loss, action mask", "recipes: config, checkpoints, resume", "evaluation, curves, video; oracles"]),
+    "scenes": (0.2, 0.15, 7.5, 1.2, "#e8f4ea", "maniskill_pnp.scenes, maniskill_pnp.cell", ["scenes: objects (procedural, mesh, YCB), clutter, scene files, locking layouts, hard sets", "cell: WorkspaceSpec (grid, cameras, rotations), bin, heightmap projection, pixel <-> action"]),
     "cli": (8.5, 0.5, 3.4, 2.0, "#eeeeee", "maniskill-pnp (cli.py)", ["quickstart, train-*, eval-*,", "record-clutter, plot-clutter,", "bench ... -> runs/<name>/"]),
 }
 #: (start, end, label, label position): edge to edge between the boxes above.
@@ -28,6 +29,7 @@ ARROWS = [
     ((7.75, 5.3), (8.45, 5.3), "batches", (8.1, 5.48)),
     ((8.45, 4.6), (7.75, 4.6), "actions", (8.1, 4.78)),
     ((10.2, 2.55), (10.2, 2.95), "configs", (10.75, 2.75)),
+    ((1.9, 1.4), (1.9, 1.55), "layouts, objects, grid", (2.9, 1.48)),
 ]
 
 
