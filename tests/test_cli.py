@@ -187,8 +187,8 @@ def jobs(tmp_path_factory):
     (out / "empty_run").mkdir()
     j = Jobs(out, LANES)
     # longest lanes first; CPU seconds measured on a 2-core machine (2026-12-06): clutter lane 114 (train 45, record 25,
-    # eval 24, export 10, plot 10), clutter-oracle + scene-counts 59, conveyor lane 44, collection 33, pixel-memory 30,
-    # against 26, demo 24, env-overhead 23, decision-breakdown 19, bench conveyor 16, the rest 8-9 each (~450 in all)
+    # eval 24, export 10, plot 10), clutter-oracle + scene-counts 59, conveyor lane 44, collection 33, against 26,
+    # demo 24, env-overhead 23, decision-breakdown 19, bench conveyor 16, the rest 8-9 each (~450 in all)
     j.chain(("train-clutter", [*MODULE, "train-clutter", *TINY_CLUTTER, "--collector", "direct", "--out", "clutter"]),
             ("eval-clutter", [*MODULE, "eval-clutter", f"clutter/{CLUTTER_RUN}", "--episodes", "1", "--max-steps", "2",
                               "--out", "clutter_eval"]),
@@ -207,8 +207,6 @@ def jobs(tmp_path_factory):
                                  "--frame-every", "4", "--out", "conveyor_video"]))
     j.chain(("bench collection", [*MODULE, "bench", "collection", "--task", "conveyor", "--workers", "1", "2",
                                   "--frames", "4", "--out", "bench"]))
-    j.chain(("bench pixel-memory", [*MODULE, "bench", "pixel-memory", "--rotations", "2", "--heightmap-size", "32",
-                                    "--num-primitives", "1", "--repeats", "1", "--threads", "1", "--out", "bench"]))
     # the cheapest benchmark with headline figures (one cube pick-and-place a side): --against is what is tested here
     j.chain(("bench against", [*MODULE, "bench", "primitives", "--episodes", "1", "--against", "HEAD", "--rounds", "1",
                                "--out", "bench_against"]))
@@ -366,15 +364,6 @@ def test_bench_conveyor(jobs):
     evaluation = _json(out / "conveyor_eval" / "eval.json", ("settings", "agents", "plots"))
     assert [Path(p).name for p in evaluation["plots"]] == ["curve_scheme_normal.png"]  # from the runs' CSV logs
     _png(out / "conveyor_eval" / "curve_scheme_normal.png", 200, 300)
-
-
-def test_bench_pixel_memory(jobs):
-    jobs["bench pixel-memory"].ok()
-    results = _report(jobs.out / "bench" / "pixel_memory.json", "pixel_memory",
-                      ("efficient", "non_efficient", "ratio_rss_efficient_over_non_efficient"))
-    for variant in ("efficient", "non_efficient"):
-        assert results[variant]["rss_growth_bytes"] > 0 and all(s > 0 for s in results[variant]["step_s"])
-    assert results["ratio_rss_efficient_over_non_efficient"] > 0
 
 
 def test_bench_decision_cost(jobs):

@@ -44,19 +44,22 @@ def test_eval_writes_metrics_tables_and_q_map_figure(tiny_clutter_run, tmp_path)
     assert image[..., :3].std() > 0  # not a blank canvas
 
 
-def _episode(seed, actions, grasp_attempts, grasps, placed, cleared, objects=4, faults=0, scenario="medium", lost=0):
+def _episode(seed, actions, grasp_attempts, grasps, placed, cleared, objects=4, faults=0, scenario="medium", lost=0,
+             **causes):
     return dict(scenario=scenario, seed=seed, objects=objects, actions=actions, grasp_attempts=grasp_attempts,
-                grasps=grasps, placed=placed, lost=lost, cleared=cleared, max_failure_run=1, faults=faults, layout="")
+                grasps=grasps, placed=placed, lost=lost, cleared=cleared, max_failure_run=1, faults=faults, layout="",
+                **causes)
 
 
 def test_completion_needs_every_starting_object_in_the_bin_and_counts_objects_not_grasps():
     # 4 objects: one grasp carried two into the bin (3 grasps place 4), so efficiency counts 4 objects / 3 actions
     two_in_one = _episode(1, 3, 3, 3, 4, True)
     # the workspace was emptied, but one object was pushed off it: not completed, though "workspace cleared"
-    knocked_off = _episode(2, 4, 4, 3, 3, True, lost=1)
+    knocked_off = _episode(2, 4, 4, 3, 3, True, lost=1, lost_by_grasp=1)
     assert is_completed(two_in_one) and not is_completed(knocked_off)
     s = summarize([two_in_one, knocked_off])
     assert s["completion"] == 0.5 and s["workspace_cleared"] == 1.0 and s["lost_per_scene"] == 0.5
+    assert s["lost_by_grasp_per_scene"] == 0.5 and s["lost_by_slide_per_scene"] == s["lost_at_release_per_scene"] == 0
     assert s["action_efficiency"] == pytest.approx(4 / 3) and s["success_rate"] == pytest.approx((4 / 3 + 3 / 4) / 2)
     assert scene_values(knocked_off)["action_efficiency"] == 0.0
 

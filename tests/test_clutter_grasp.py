@@ -8,7 +8,8 @@ import pytest
 import torch
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
-from maniskill_pnp.tasks import OUTCOME_KEYS, TASK_IDS, ClutterGraspEnv
+from maniskill_pnp.tasks import LOSS_CAUSES, OUTCOME_KEYS, TASK_IDS, ClutterGraspEnv
+from maniskill_pnp.tasks.clutter_grasp import loss_causes
 from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
 from maniskill_pnp.scenes.objects import ObjectSpec
 from maniskill_pnp.cell.workspace import WorkspaceSpec
@@ -246,3 +247,19 @@ def test_view_volumes_separate_boxes_only_outside_every_camera():
         views.clear_of(np.zeros((2, 3)), np.zeros((3, 3)))
     with pytest.raises(ValueError, match="margin"):
         ViewVolumes(spec, margin=-1.0)
+
+
+def test_each_lost_object_gets_one_cause():
+    """Only objects that became lost count; a slide's are the slide's; a grasp's are the neighbours' unless it is the
+    held object, which was dropped in transit when the jaws felt nothing as they opened, else lost at release."""
+    names = ["a", "b", "c", "d"]
+    before = ["workspace", "workspace", "lost", "workspace"]
+    after = ["lost", "bin", "lost", "lost"]  # a and d newly lost; c was lost already; b placed
+    assert loss_causes(before, after, names, "left_slide") == dict(dict.fromkeys(LOSS_CAUSES, 0), lost_by_slide=2)
+    assert loss_causes(before, after, names, "grasp") == dict(dict.fromkeys(LOSS_CAUSES, 0), lost_by_grasp=2)
+    for held_at_release, cause in ((False, "lost_in_transit"), (True, "lost_at_release"), (None, "lost_at_release")):
+        counts = loss_causes(before, after, names, "grasp", held="d", held_at_release=held_at_release)
+        assert counts == dict(dict.fromkeys(LOSS_CAUSES, 0), lost_by_grasp=1, **{cause: 1}), held_at_release
+    assert sum(loss_causes(before, before, names, "grasp", held="a").values()) == 0
+    with pytest.raises(ValueError):
+        loss_causes(before, after[:3], names, "grasp")

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import maniskill_pnp  # noqa: F401  (registers the tasks)
-from maniskill_pnp.tasks import TASK_IDS, ClutterGraspSlideEnv
+from maniskill_pnp.tasks import LOSS_CAUSES, TASK_IDS, ClutterGraspSlideEnv
 from maniskill_pnp.scenes.clutter import density_range, random_specs, sample_packed, validate_layout
 from maniskill_pnp.tasks.clutter_grasp_slide import REWARD_SCHEMES, change_threshold, heightmap_changed
 from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
@@ -140,6 +140,7 @@ def test_slide_that_knocks_an_object_out_of_the_workspace_is_a_failure():
         e.reset(seed=0)
         reward, info = act(e, "left_slide", 0, np.asarray(edge) - [0.0, 0.04, 0.0])
         assert info["knocked_out"] == 1 and info["lost_objects"] == 1, info
+        assert {k: int(info[k]) for k in LOSS_CAUSES} == dict(dict.fromkeys(LOSS_CAUSES, 0), lost_by_slide=1)
         assert reward == 0.0 and info["consecutive_failures"] == 1 and "out of the workspace" in info["reason"]
     finally:
         e.close()

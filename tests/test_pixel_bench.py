@@ -10,9 +10,7 @@ import torch
 from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork
 from maniskill_pnp.bench.pixel_dqn import (
     DecisionCostBenchConfig,
-    PixelMemoryBenchConfig,
     run_decision_cost,
-    run_pixel_memory,
     set_memory_efficient,
 )
 from maniskill_pnp.bench.training_throughput import TrainingThroughputBenchConfig, run as run_throughput
@@ -25,10 +23,14 @@ def test_memory_efficient_switch_reaches_every_dense_layer():
     assert not any(getattr(m, "memory_efficient", False) for m in net.modules())
 
 
-def test_pixel_memory_tiny(tmp_path):
-    out = tmp_path / "pixel_memory.json"
-    run_pixel_memory(PixelMemoryBenchConfig(num_rotations=2, heightmap_size=32, num_primitives=1, threads=1, out=out))
-    results = json.loads(out.read_text())["results"]
+def test_pixel_memory_tiny(tmp_path, capsys):
+    """The command line ``bench pixel-memory`` (parsed and run by the command's ``main`` here; its variants measure in
+    processes of their own): both DenseNet-121 variants, their memory and step times, and the ratio."""
+    cli(["bench", "pixel-memory", "--rotations", "2", "--heightmap-size", "32", "--num-primitives", "1", "--repeats", "1",
+         "--threads", "1", "--out", str(tmp_path)])
+    report = json.loads((tmp_path / "pixel_memory.json").read_text())
+    assert report["machine"]["cpus"] >= 1 and "ratio" in capsys.readouterr().out
+    results = report["results"]
     for name, flag in (("efficient", True), ("non_efficient", False)):
         v = results[name]
         assert v["memory_efficient"] is flag and v["dense_layers"] == 2 * 58  # colour and depth trunks

@@ -167,6 +167,7 @@ def test_pick_and_place_succeeds_in_9_of_10_seeds(cube_env):
         if pick.ok:
             assert pick.grasped and pick.held == "cube"
             place = prims.place(cube_env.unwrapped.bin_spec.region())
+            assert place.held_at_release is True  # the jaws still felt the cube when they opened over the bin
             home = prims.go_home()
             steps.append(pick.sim_steps + place.sim_steps + home.sim_steps)
             successes += int(place.ok and bool(cube_env.unwrapped.evaluate()["success"].item()))

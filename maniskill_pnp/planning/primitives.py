@@ -89,6 +89,8 @@ class PrimitiveResult:
         placed: The object came to rest inside the place region.
         moved: Displacement (m) of the pushed object by a slide, when a target was named.
         held: Name of the object in the gripper after the primitive, if any.
+        held_at_release: Place: whether the grasp sensor still felt the object when the gripper opened over the
+            place region (False: it had dropped on the way); None when the gripper never opened.
         planning_time: Seconds spent in IK, RRT-Connect, time parameterization and the collision-world syncs.
         sim_steps: Physics steps executed.
         stages: Per-stage log: (stage name, ok, detail).
@@ -101,6 +103,7 @@ class PrimitiveResult:
     placed: bool = False
     moved: float = 0.0
     held: str | None = None
+    held_at_release: bool | None = None
     planning_time: float = 0.0
     sim_steps: int = 0
     stages: list[tuple[str, bool, str]] = field(default_factory=list)
@@ -288,15 +291,14 @@ class MotionPrimitives:
         heights = self._object_heights(movable)
         yield self._gripper(-1.0, self.GRIPPER_STEPS)
         fingers = self.executor.finger_qpos()
-        closed_on_something = bool(np.min(fingers) > self.EMPTY_GAP)
+        closed_on_something = self.jaws_on_something()
         self._sync(ignore=movable)  # lift straight up through whatever is around the grasp
         self.world.set_fingers(float(np.min(fingers)))
         up = yield from self._lift(goal, res)
         lifted = {n: h for n, h in self._object_heights(movable).items() if h - heights[n] > self.LIFTED}
-        fingers = self.executor.finger_qpos()
         pool = set(candidates) if candidates is not None else movable
         held = [n for n in lifted if n in pool and (target is None or n == target)]
-        res.grasped = bool(np.min(fingers) > self.EMPTY_GAP) and closed_on_something and bool(held)
+        res.grasped = self.jaws_on_something() and closed_on_something and bool(held)
         if not res.grasped:
             why = "jaws closed on nothing" if not closed_on_something else "object slipped or was not lifted"
             if lifted:  # it came up without a grasp (on a finger, or wedged): put it back before going anywhere
@@ -366,6 +368,7 @@ class MotionPrimitives:
             yield from self._move_to(ik.q, "carry", res)
         finally:
             self.world.detach()
+        res.held_at_release = self.jaws_on_something()
         yield self._gripper(1.0, self.GRIPPER_STEPS)
         self.held = None
         yield self._wait_at_rest(name)
@@ -514,6 +517,11 @@ class MotionPrimitives:
             if actor.px_body_type == "dynamic":
                 names.add(name)
         return names
+
+    def jaws_on_something(self) -> bool:
+        """The gripper's grasp sensor: the fingers, closing, stopped apart on something (their gap above
+        :attr:`EMPTY_GAP`)."""
+        return bool(np.min(self.executor.finger_qpos()) > self.EMPTY_GAP)
 
     def _fingers_closed(self) -> bool:
         return bool(np.max(self.executor.finger_qpos()) < self.arm.gripper_open - 0.005)

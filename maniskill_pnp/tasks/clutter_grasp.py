@@ -65,6 +65,42 @@ from maniskill_pnp.cell.workspace import WorkspaceSpec
 ROBOT_BASE = (-0.615, 0.0, 0.0)
 logger = logging.getLogger(__name__)
 
+#: Why an action lost an object (it left the workspace other than into the bin): the ``info`` key that counts the
+#: step's objects lost that way, and its meaning. The four add up to ``info["knocked_out"]``.
+LOSS_CAUSES = {
+    "lost_by_slide": "pushed out of the workspace or off the table by a slide",
+    "lost_by_grasp": "an object other than the grasped one, rolled or pushed off during a grasp (the descent, the lift, "
+                     "the carry or the way home), whether the grasp succeeded or not",
+    "lost_in_transit": "the grasped object, dropped before the gripper opened over the bin (the grasp sensor felt "
+                       "nothing in the jaws there)",
+    "lost_at_release": "the grasped object, lost once the gripper opened: thrown or bounced out of the bin, or let go "
+                       "beside it after a carry that did not reach it",
+}
+
+
+def loss_causes(before: list[str], after: list[str], names: list[str], primitive: str, held: str | None = None,
+                held_at_release: bool | None = None) -> dict[str, int]:
+    """How many objects one action lost, by cause (:data:`LOSS_CAUSES`).
+
+    Args:
+        before, after: Each object's status (``"workspace"``, ``"bin"``, ``"lost"``) before and after the action.
+        names: The objects' names, in the same order.
+        primitive: The action's primitive; any other than ``"grasp"`` is a slide.
+        held: The object the grasp lifted (None: it lifted none).
+        held_at_release: Whether the grasp sensor still felt ``held`` when the gripper opened.
+    """
+    counts = dict.fromkeys(LOSS_CAUSES, 0)
+    for name, was, now in zip(names, before, after, strict=True):
+        if now != "lost" or was == "lost":
+            continue
+        if primitive != "grasp":
+            counts["lost_by_slide"] += 1
+        elif name != held:
+            counts["lost_by_grasp"] += 1
+        else:
+            counts["lost_in_transit" if held_at_release is False else "lost_at_release"] += 1
+    return counts
+
 
 def resolve_objects(objects) -> tuple[ObjectSpec, ...]:
     """The objects of ``objects=``: ``"ycb"`` (every YCB model that fits the gripper; the others are logged and left
@@ -340,7 +376,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
 
     def _initial_last(self) -> dict:
         """The ``last`` entry of an env before its first action."""
-        return dict(super()._initial_last(), stage="reset", reason="")
+        return dict(super()._initial_last(), stage="reset", reason="", **dict.fromkeys(LOSS_CAUSES, 0))
 
     def _primitives(self) -> list[MotionPrimitives]:
         """Each env's motion primitives, all driving one shared :class:`LockstepExecutor`."""
@@ -373,14 +409,18 @@ class ClutterGraspEnv(PrimitiveStepEnv):
 
     def _snapshot(self, env: int) -> dict:
         status = self.clutter.status(env)
-        return dict(height=self._height[env], lost=status.count("lost"), in_bin=status.count("bin"))
+        return dict(height=self._height[env], lost=status.count("lost"), in_bin=status.count("bin"), status=status)
 
-    def _object_moves(self, env: int, before: dict) -> dict:
+    def _object_moves(self, env: int, before: dict, primitive: str, result: dict) -> dict:
         """The objects env ``env``'s action put into the bin (``placed_objects``) and out of the workspace other than
-        into the bin (``knocked_out``), from the counts ``before`` it (:meth:`_snapshot`)."""
+        into the bin (``knocked_out``, and by cause: :data:`LOSS_CAUSES`), from the statuses ``before`` it
+        (:meth:`_snapshot`) and the primitive's ``result`` (which object a grasp held, and whether it still did when
+        the gripper opened)."""
         status = self.clutter.status(env)
+        causes = loss_causes(before["status"], status, self.clutter.active[env], primitive, result.get("held"),
+                             result.get("held_at_release"))
         return dict(placed_objects=max(0, status.count("bin") - before["in_bin"]),
-                    knocked_out=max(0, status.count("lost") - before["lost"]))
+                    knocked_out=max(0, status.count("lost") - before["lost"]), **causes)
 
     def _step_program(self, env: int, decision: Decision) -> Program:
         """Env ``env``'s whole step as one program: the decoded primitive, then the way home (planned a second time
@@ -401,7 +441,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     def _judge(self, env: int, decision: Decision, result: dict, before: dict) -> Judgement:
         grasped, placed = result["grasp_success"], result["place_success"]
         r = self.rewards
-        outcome = dict(result, **self._object_moves(env, before))
+        moves = self._object_moves(env, before, decision.primitive, result)
+        outcome = dict({k: v for k, v in result.items() if k not in ("held", "held_at_release")}, **moves)
         return Judgement(r["place"] if placed else r["grasp"] if grasped else 0.0, bool(grasped), outcome)
 
     def _record(self, env: int, decision: Decision, judged: Judgement) -> None:
@@ -432,19 +473,23 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         yaw = float(self.workspace.rotation_to_yaw(rot))
         pick = yield from prims.program("pick", grasp_pose(xyz, yaw), target=None, candidates=self.clutter.in_workspace(env))
         placed, place_stage, place_reason, planning_time = False, "", "", pick.planning_time
+        held_at_release = None
         if pick.grasped:
             place = yield from prims.program("place", self.workspace.bin.region())
             placed, place_stage, place_reason = place.placed, place.stage, place.reason
             planning_time += place.planning_time
+            held_at_release = place.held_at_release
             if not placed:
                 # Carrying failed (object still held) or it had not come to rest yet: open wide, wait, look again.
+                if held_at_release is None:  # the place never opened the gripper: feel the jaws before this does
+                    held_at_release = prims.jaws_on_something()
                 yield Motion(gripper=1.0, min_steps=self.RELEASE_STEPS, settle_tol=None)
                 prims.held = None
                 placed = self.clutter.status(env)[self.clutter.active[env].index(pick.held)] == "bin"
         return dict(
             grasp_success=bool(pick.grasped), place_success=bool(placed), stage=pick.stage, reason=pick.reason,
             place_stage=place_stage, place_reason=place_reason, grasp_position=[float(v) for v in xyz], grasp_yaw=yaw,
-            planning_time=planning_time,
+            planning_time=planning_time, held=pick.held if pick.grasped else None, held_at_release=held_at_release,
         )
 
     # ------------------------------------------------------------------ layouts

@@ -219,7 +219,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
             return super()._judge(env, decision, result, before)
         n = changed_pixels(before["height"], self._height[env])
         changed = n > change_threshold(*before["height"].shape)
-        moves = self._object_moves(env, before)
+        moves = self._object_moves(env, before, decision.primitive, result)
         knocked_out = moves["knocked_out"]
         outcome = dict(result, slide_changed=changed, changed_pixels=n, **moves)
         if knocked_out > 0:  # pushing objects off the workspace is no progress: no reward, and it counts as a failure

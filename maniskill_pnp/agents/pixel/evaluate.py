@@ -35,7 +35,9 @@ Metrics (``docs/metrics.md``, computed from the env's ``info`` of every step):
 
 Two more columns, named for what they measure: ``workspace_cleared`` (episodes whose workspace was emptied, into the
 bin or not: the completion rule before objects were counted) and ``lost_per_scene`` (objects pushed or dropped out of
-the workspace per scene; each episode's count is its ``lost`` column).
+the workspace per scene; each episode's count is its ``lost`` column), split by cause as the task reports it
+(``lost_by_slide_per_scene``, ``lost_by_grasp_per_scene``, ``lost_in_transit_per_scene``,
+``lost_at_release_per_scene``; :data:`~maniskill_pnp.tasks.LOSS_CAUSES`).
 
 Each comes with its standard error over scenes (``<metric>_se``: the spread of the per-scene values of
 :func:`scene_values`), and each scenario with its faults per 100 actions (steps that ended on a fault of the
@@ -59,7 +61,7 @@ import io
 import math
 import statistics
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from collections.abc import Collection
 from pathlib import Path
 
@@ -76,21 +78,29 @@ from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
 from maniskill_pnp.runtime import resolve_device
 from maniskill_pnp.cell.pixel_action import PixelActionLayout
 from maniskill_pnp.scenes.scene_file import read_scene
+from maniskill_pnp.tasks import LOSS_CAUSES
 
 #: Longest run of consecutive failed grasps a completed episode may contain (VPG's completion criterion).
 MAX_FAILURE_RUN = 10
 #: Names of the metrics, in table order (``docs/metrics.md``).
 METRICS = ("success_rate", "grasp_success", "completion", "action_efficiency")
 #: Columns of the per-episode table.
-EPISODE_COLUMNS = ("scenario", "seed", "objects", "dropped_out", "actions", "grasp_attempts", "grasps", "placed", "lost", "cleared",
-                   "completed", "max_failure_run", "success_rate", "grasp_success", "faults", "layout")
-#: Extra per-scenario columns: the share of episodes whose workspace was emptied (into the bin or not) and the
-#: objects lost (pushed or dropped out of the workspace) per scene.
-EXTRA_COLUMNS = ("workspace_cleared", "lost_per_scene")
+#: Why an object was lost, as the task reports it per step (``info`` keys of
+#: :data:`~maniskill_pnp.tasks.LOSS_CAUSES`): slide, grasp of another object, dropped in transit,
+#: lost at release.
+LOSS_CAUSE_KEYS = tuple(LOSS_CAUSES)
+EPISODE_COLUMNS = ("scenario", "seed", "objects", "dropped_out", "actions", "grasp_attempts", "grasps", "placed", "lost",
+                   *LOSS_CAUSE_KEYS, "cleared", "completed", "max_failure_run", "success_rate", "grasp_success", "faults",
+                   "layout")
+#: Extra per-scenario columns: the share of episodes whose workspace was emptied (into the bin or not), the objects
+#: lost (pushed or dropped out of the workspace) per scene, and per scene by cause.
+EXTRA_COLUMNS = ("workspace_cleared", "lost_per_scene", *(f"{k}_per_scene" for k in LOSS_CAUSE_KEYS))
 #: Columns of the per-scenario table (Table IX).
 SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS, *(f"{m}_se" for m in METRICS), *EXTRA_COLUMNS, "faults_per_100_actions")
-#: Columns of ``eval_table.md``: each metric is shown as "value ± standard error".
-TABLE_HEADER = ("scenario", "episodes", *METRICS, "workspace cleared", "lost / scene", "faults / 100 actions")
+#: Columns of ``eval_table.md``: each metric is shown as "value ± standard error"; the lost objects per scene by
+#: cause as "slide / grasp / transit / release".
+TABLE_HEADER = ("scenario", "episodes", *METRICS, "workspace cleared", "lost / scene",
+                "lost by slide / grasp / transit / release", "faults / 100 actions")
 
 
 @dataclass(frozen=True)
@@ -227,6 +237,7 @@ def summarize(episodes: list[dict]) -> dict:
         **{f"{m}_se": standard_error(v[m] for v in per_scene) for m in METRICS},
         workspace_cleared=statistics.mean(float(bool(e["cleared"])) for e in episodes),
         lost_per_scene=statistics.mean(e["lost"] for e in episodes),
+        **{f"{k}_per_scene": statistics.mean(int(e.get(k, 0)) for e in episodes) for k in LOSS_CAUSE_KEYS},
         faults_per_100_actions=100.0 * sum(e.get("faults", 0) for e in episodes) / actions if actions else 0.0,
     )
 
@@ -311,9 +322,13 @@ class EpisodeTally:
     placed: int = 0
     faults: int = 0
     max_failure_run: int = 0
+    lost: dict = field(default_factory=lambda: dict.fromkeys(LOSS_CAUSE_KEYS, 0))
+    """Objects the steps lost, by cause (:data:`LOSS_CAUSE_KEYS`)."""
 
     def add(self, info: dict) -> None:
         """Count one step's ``info``."""
+        for key in LOSS_CAUSE_KEYS:
+            self.lost[key] += int(info[key])
         self.actions += 1
         self.grasp_attempts += int(is_grasp_attempt(self.primitives, int(info["primitive_index"])))
         self.grasps += int(info["grasp_success"])
@@ -366,7 +381,8 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
     t = tally
     record = dict(
         scenario=scenario, seed=seed, objects=objects, dropped_out=dropped_out, actions=t.actions,
-        grasp_attempts=t.grasp_attempts, grasps=t.grasps, placed=t.placed, lost=int(info["lost_objects"]) - dropped_out, cleared=bool(info["success"].item()),
+        grasp_attempts=t.grasp_attempts, grasps=t.grasps, placed=t.placed, lost=int(info["lost_objects"]) - dropped_out,
+        **t.lost, cleared=bool(info["success"].item()),
         max_failure_run=t.max_failure_run, success_rate=t.placed / t.actions,
         completed=False,
         grasp_success=t.grasps / t.grasp_attempts if t.grasp_attempts else 0.0, faults=t.faults, layout=layout,
@@ -442,6 +458,7 @@ def write_tables(rows: list[dict], episodes: list[dict], out: Path) -> tuple[Pat
     md = ["| " + " | ".join(TABLE_HEADER) + " |", "|---" * len(TABLE_HEADER) + "|"]
     md += ["| " + " | ".join([r["scenario"], str(r["episodes"]), *(f"{r[k]:.1%} ± {r[f'{k}_se']:.1%}" for k in METRICS),
                               f"{r['workspace_cleared']:.1%}", f"{r['lost_per_scene']:.2f}",
+                              " / ".join(f"{r[f'{k}_per_scene']:.2f}" for k in LOSS_CAUSE_KEYS),
                               f"{r['faults_per_100_actions']:.2f}"]) + " |" for r in rows]
     md_path, csv_path, ep_path = out / "eval_table.md", out / "eval_table.csv", out / "eval_episodes.csv"
     atomic_write_bytes(md_path, lambda f: f.write(("\n".join(md) + "\n").encode()))
