@@ -408,8 +408,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         return Decision(index, self.PRIMITIVES[primitive], (rot, row, col))
 
     def _snapshot(self, env: int) -> dict:
-        status = self.clutter.status(env)
-        return dict(height=self._height[env], lost=status.count("lost"), in_bin=status.count("bin"), status=status)
+        return dict(height=self._height[env], status=self.clutter.status(env))
 
     def _object_moves(self, env: int, before: dict, primitive: str, result: dict) -> dict:
         """The objects env ``env``'s action put into the bin (``placed_objects``) and out of the workspace other than
@@ -419,8 +418,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         status = self.clutter.status(env)
         causes = loss_causes(before["status"], status, self.clutter.active[env], primitive, result.get("held"),
                              result.get("held_at_release"))
-        return dict(placed_objects=max(0, status.count("bin") - before["in_bin"]),
-                    knocked_out=max(0, status.count("lost") - before["lost"]), **causes)
+        return dict(placed_objects=max(0, status.count("bin") - before["status"].count("bin")),
+                    knocked_out=sum(causes.values()), **causes)
 
     def _step_program(self, env: int, decision: Decision) -> Program:
         """Env ``env``'s whole step as one program: the decoded primitive, then the way home (planned a second time
