@@ -8,7 +8,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.objectives import HardUpdate
 
-from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork, PixelQNetwork, padded_size
+from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork, PixelQNetwork, make_trunk, padded_size
 from maniskill_pnp.agents.pixel.loss import PixelBCELoss, PixelDQNLoss
 from maniskill_pnp.agents.pixel.replay import make_pixel_replay, pack, pack_transition, unpack, unpack_transition
 from maniskill_pnp.cell.pixel_action import PixelActionLayout
@@ -77,7 +77,7 @@ def test_no_depth_network_shape():
         assert net(heightmaps(2, 0)).shape == (2, R, H, W)
 
 
-@pytest.mark.parametrize("backbone", ["densenet121", "resnet101"])
+@pytest.mark.parametrize("backbone", ["densenet121", "resnet101", "densenet121-s8", "resnet101-s8"])
 def test_heavy_backbone_shape(backbone):
     net = PixelQNetwork(num_rotations=R, backbone=backbone).eval()
     with torch.no_grad():
@@ -352,6 +352,31 @@ def test_executed_values_equal_the_full_maps_and_give_the_same_gradient():
         torch.testing.assert_close(grads[0][k], grads[1][k], rtol=1e-4, atol=1e-6)
     with pytest.raises(ValueError, match="out of range"):
         net.executed_values(x, torch.tensor([0, 1, 2, layout.size]))
+
+
+@pytest.mark.parametrize("backbone", ["small", "densenet121-s8", "resnet101-s8"])
+def test_stride_8_trunks_centre_feature_i_on_offset_plus_stride_i(backbone):
+    """The receptive field of a trunk's feature ``i`` (the input pixels its gradient reaches) is centred on
+    ``offset + stride * i``, the pixel :meth:`PixelQNetwork.upsample` puts it on."""
+    from maniskill_pnp.agents.pixel.fcn import BACKBONES
+
+    spec = BACKBONES[backbone]
+    trunk = make_trunk(backbone).eval()
+    for module in list(trunk.modules()):  # linear stand-ins with the same geometry: every path carries gradient
+        for name, child in module.named_children():
+            if isinstance(child, nn.ReLU):
+                setattr(module, name, nn.Identity())
+            elif isinstance(child, nn.MaxPool2d):
+                setattr(module, name, nn.AvgPool2d(child.kernel_size, child.stride, child.padding))
+    x = torch.ones(1, 3, 512, 512, requires_grad=True)
+    features = trunk(x)
+    assert features.shape[1:] == (spec.channels, 512 // spec.stride, 512 // spec.stride)
+    i = features.shape[-1] // 2
+    features[0, :, i, i].sum().backward()
+    reached = x.grad[0].abs().sum(0) > 0
+    rows = torch.nonzero(reached.any(1)).flatten()
+    assert 0 < rows.min() and rows.max() < 511  # the field lies inside the image, so its extent is its own
+    assert (rows.min() + rows.max()).item() / 2 == pytest.approx(spec.offset + spec.stride * i, abs=0.5)
 
 
 @pytest.mark.parametrize("backbone, cell, pixel", [("small", 3, 24), ("densenet121", 2, 78), ("resnet101", 1, 32)])

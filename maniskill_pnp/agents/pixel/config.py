@@ -62,7 +62,8 @@ class ClutterConfig(RunConfig):
     "no_slide_reward" or "unlock" (a slide pays only when it makes a locked object graspable); must be "default" for
     task grasp."""
     backbone: str = "small"
-    """Feature trunk of the Q network: "densenet121" (thesis), "resnet101" or "small" (ResNet-18 to layer2), each run on
+    """Feature trunk of the Q network: "densenet121" (thesis), "resnet101", their stride-8 cuts "densenet121-s8" and
+    "resnet101-s8" (the trunk pair at 64 px), or "small" (ResNet-18 to layer2), each run on
     R rotated copies of the heightmap; or "equivariant": a small rotation-equivariant (e2cnn, C_R) network giving all R
     maps in one pass on the unrotated heightmap, its grasp maps r and r + R/2 tied (needs num_rotations >= 2, no
     pretrained weights)."""

@@ -25,6 +25,9 @@ Backbones (``backbone=``):
 * ``"densenet121"`` (thesis default): ``torchvision.models.densenet121(memory_efficient=True).features``,
   1024 channels at stride 32.
 * ``"resnet101"`` (the thesis' ablation): ResNet-101 up to ``layer4``, 2048 channels at stride 32.
+* ``"densenet121-s8"`` / ``"resnet101-s8"``: the thesis' pair cut to stride 8 (DenseNet-121 up to its second dense
+  block, ResNet-101 up to ``layer2``; 512 channels each), for heightmaps of 64 px, where the whole trunks leave a
+  2 x 2 feature map. Their weights keep the torchvision layout of the full classifier.
 * ``"small"`` (CPU presets and tests): ResNet-18 truncated after ``layer2``, 128 channels at stride 8. It keeps
   the torchvision weight layout (so a local ResNet-18 checkpoint can initialise it), costs about a tenth of a
   DenseNet-121 trunk per pixel and, at stride 8, still gives usable maps on small heightmaps.
@@ -92,6 +95,20 @@ BACKBONES: dict[str, _Backbone] = {
         truncate=_resnet_trunk("layer4"),
         channels=2048,
         stride=32,
+        offset=0.0,
+    ),
+    "densenet121-s8": _Backbone(
+        build=lambda: torchvision.models.densenet121(weights=None, memory_efficient=True),
+        truncate=lambda m: m.features[:7],  # conv0 .. pool0, denseblock1, transition1, denseblock2
+        channels=512,
+        stride=8,
+        offset=2.0,
+    ),
+    "resnet101-s8": _Backbone(
+        build=lambda: torchvision.models.resnet101(weights=None),
+        truncate=_resnet_trunk("layer2"),
+        channels=512,
+        stride=8,
         offset=0.0,
     ),
     "small": _Backbone(
@@ -179,7 +196,7 @@ class PixelQNetwork(nn.Module):
 
     Args:
         num_rotations: Number of rotations ``R`` (the thesis uses 16).
-        backbone: ``"densenet121"``, ``"resnet101"`` or ``"small"`` (see the module docstring).
+        backbone: A key of :data:`BACKBONES` (see the module docstring).
         use_depth: Keep the depth trunk (False: the thesis' "no depth" ablation, colour trunk only).
         head_channels: Width of the hidden 1x1 convolution.
         pretrained_path: Local ``state_dict`` of the full torchvision classifier, loaded into both trunks.
