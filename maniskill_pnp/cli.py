@@ -44,8 +44,14 @@ def _check_scene(args) -> None:
     from maniskill_pnp.scenes.grasp_feasibility import check_scene_file, format_report
     from maniskill_pnp.scenes.scene_file import SceneFileError
 
-    total = locked = 0
-    for path in args.files:
+    from maniskill_pnp.agents.pixel.factories import FILE_SCENARIOS, scenario_layout_files
+
+    files = []
+    for path in args.files:  # a scenario's name stands for its scene files
+        named = str(path) in FILE_SCENARIOS and not path.exists()
+        files.extend(scenario_layout_files(str(path)) if named else [path])
+    total = locked = half_locked = 0
+    for path in files:
         try:
             grasps = check_scene_file(path, yaw_step_deg=args.yaw_step, position_step=args.position_step / 1000)
         except (FileNotFoundError, SceneFileError, ValueError) as e:
@@ -53,8 +59,10 @@ def _check_scene(args) -> None:
         print(format_report(str(path), grasps))
         total += len(grasps)
         locked += sum(g.locked for g in grasps)
-    if len(args.files) > 1:
-        print(f"all {len(args.files)} scenes: {total} objects, {locked} locked")
+        half_locked += 2 * sum(g.locked for g in grasps) >= len(grasps)
+    if len(files) > 1:
+        print(f"all {len(files)} scenes: {total} objects, {locked} locked; {half_locked} scenes with at least half of "
+              "their objects locked")
 
 
 def _strip_options(argv: list[str], names: tuple[str, ...]) -> list[str]:
@@ -167,6 +175,9 @@ def _bench_scale(args) -> None:
 
 #: The sizing options of ``bench pixel-memory`` and ``bench decision-cost`` (fields of their configs; ``warmup`` is
 #: soak's too).
+#: The scenarios that play scene files (agents.pixel.factories.FILE_SCENARIOS, written out here so that building the
+#: parser imports no torch; a test keeps the two equal).
+FILE_SCENARIO_NAMES = ("hard", "hard_unseen")
 PIXEL_BENCH_OPTIONS = ("backbone", "num_rotations", "heightmap_size", "num_primitives", "repeats", "warmup", "device",
                        "threads", "max_rss_gb")
 
@@ -442,8 +453,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="decision-breakdown, batched-decisions: clutter recipe preset (default: %(default)s)")
     bench.add_argument("--num-envs", type=int, nargs="+", default=[1, 16],
                        help="batched-decisions: env counts run on the GPU (default: 1 16)")
-    bench.add_argument("--scenario", choices=["hard"], default=None,
-                       help="clutter-oracle: play the hard test set's scene files instead of random clutter")
+    bench.add_argument("--scenario", choices=FILE_SCENARIO_NAMES, default=None,
+                       help="clutter-oracle: play the scene files of the hard test set or of the held-out families "
+                            "instead of random clutter")
     bench.add_argument("--guard-force", type=float, default=None,
                        help="clutter-oracle: guarded grasps, descents stop on an upward contact force above this (N)")
     bench.add_argument("--oracle", choices=["heightmap", "grasp-only", "slide-then-grasp"], default="heightmap",
@@ -535,7 +547,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     check = sub.add_parser("check-scene", help="which objects of scene files no top-down grasp can take (locked): "
                            "per scene its objects, locked count and feasible grasps per object")
-    check.add_argument("files", type=Path, nargs="+", help="scene files (YAML or JSON)")
+    check.add_argument("files", type=Path, nargs="+", help="scene files (YAML or JSON), or the name of a scenario "
+                       f"that plays scene files ({', '.join(FILE_SCENARIO_NAMES)}) for all of its files")
     check.add_argument("--yaw-step", type=float, default=15.0, help="jaw orientations every this many degrees over 180 "
                        "(default: %(default)s)")
     check.add_argument("--position-step", type=float, default=3.0, help="grasp positions every this many mm over each "

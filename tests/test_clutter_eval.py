@@ -16,6 +16,9 @@ from maniskill_pnp.agents.pixel.evaluate import (
 )
 from maniskill_pnp.agents.pixel.recipe import main as train
 from maniskill_pnp.cli import main as cli
+from maniskill_pnp.cell.workspace import WorkspaceSpec
+from maniskill_pnp.scenes.packed_families import unseen_scene_files
+from maniskill_pnp.scenes.scene_file import load_scene
 
 
 def test_eval_writes_metrics_tables_and_q_map_figure(tiny_clutter_run, tmp_path):
@@ -126,13 +129,15 @@ def test_grasp_slide_table_ix_over_scenarios_and_grasp_only(tmp_path):
     cfg = ClutterConfig.from_preset("gs-cpu-small", heightmap_size=32, num_rotations=2, num_objects=3, steps=2,
                                     checkpoint_interval=2, log_interval=1, collector="direct", out=tmp_path)
     train(cfg)
-    both = run(ClutterEvalConfig(checkpoint=cfg.run_dir, episodes=1, max_steps=2, scenarios=("2", "complicated"),
-                                 out=tmp_path / "gs"))
-    assert list(both["metrics"]) == ["2", "complicated"]
+    both = run(ClutterEvalConfig(checkpoint=cfg.run_dir, episodes=1, max_steps=2,
+                                 scenarios=("2", "complicated", "hard_unseen"), out=tmp_path / "gs"))
+    assert list(both["metrics"]) == ["2", "complicated", "hard_unseen"]
     rows = (tmp_path / "gs" / "eval_table.md").read_text().splitlines()
-    assert rows[0].startswith("| scenario | episodes | success_rate") and len(rows) == 4
-    assert [e["scenario"] for e in both["episodes"]] == ["2", "complicated"]
+    assert rows[0].startswith("| scenario | episodes | success_rate") and len(rows) == 5
+    assert [e["scenario"] for e in both["episodes"]] == ["2", "complicated", "hard_unseen"]
     assert 3 <= both["episodes"][1]["objects"] <= 7  # a hand-designed locking layout
+    unseen = both["episodes"][2]  # the held-out families' first scene file
+    assert unseen["layout"] == "unseen_00" and unseen["objects"] == len(load_scene(unseen_scene_files()[0], WorkspaceSpec()))
 
     grasps = run(ClutterEvalConfig(checkpoint=cfg.run_dir, episodes=1, scenarios=("2",), grasp_only=True,
                                    actions_per_object=0.5, out=tmp_path / "grasp_only"))

@@ -22,7 +22,7 @@ import gymnasium as gym
 from tqdm import tqdm
 
 from maniskill_pnp.agents.pixel.evaluate import EpisodeTally, summarize
-from maniskill_pnp.agents.pixel.factories import scenario_layout_files
+from maniskill_pnp.agents.pixel.factories import FILE_SCENARIOS, scenario_layout_files
 from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.runtime import default_backends
 from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
@@ -40,8 +40,8 @@ class ClutterOracleBenchConfig:
         scenes: Seeded scenes (seeds 0..scenes-1).
         num_objects: Objects per scene (random clutter).
         scenario: None: random loosely packed clutter of ``num_objects``; ``"hard"``: the hard test set's scene files
-            (tightly packed, at least half the objects locked, and the locking layouts), scene i playing file
-            i mod their number.
+            (tightly packed, at least half the objects locked, and the locking layouts), or ``"hard_unseen"``: the
+            held-out families' scene files; scene i playing file i mod their number.
         guard_force: Guarded grasps (N, see ``ClutterGrasp-v1``'s ``guard_force``); None: unguarded.
         oracle: One of :data:`ORACLES`.
         out: JSON report path.
@@ -58,11 +58,11 @@ class ClutterOracleBenchConfig:
 def run(cfg: ClutterOracleBenchConfig) -> dict:
     if cfg.scenes < 1 or cfg.num_objects < 1:
         raise ValueError(f"scenes and num_objects must be >= 1, got {cfg.scenes} and {cfg.num_objects}")
-    if cfg.scenario not in (None, "hard"):
-        raise ValueError(f"scenario must be None (random clutter) or 'hard', got {cfg.scenario!r}")
+    if cfg.scenario is not None and cfg.scenario not in FILE_SCENARIOS:
+        raise ValueError(f"scenario must be None (random clutter) or one of {list(FILE_SCENARIOS)}, got {cfg.scenario!r}")
     if cfg.oracle not in ORACLES:
         raise ValueError(f"unknown oracle {cfg.oracle!r}; valid: {list(ORACLES)}")
-    files = scenario_layout_files("hard") if cfg.scenario == "hard" else None
+    files = None if cfg.scenario is None else scenario_layout_files(cfg.scenario)
     scene_args = dict(num_objects=cfg.num_objects) if files is None else dict(layout_file=[str(p) for p in files])
     env = gym.make(ORACLES[cfg.oracle], guard_force=cfg.guard_force, **scene_args, **default_backends())
     if cfg.oracle == "heightmap":

@@ -27,8 +27,12 @@ from maniskill_pnp.cell.workspace import WorkspaceSpec
 #: density preset of the task (``"min"``, ``"medium"``, ``"max"``) or ``"complicated"`` (ClutterGraspSlide-v1's
 #: hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset) or ``"hard"`` (the scene files of
 #: :func:`~maniskill_pnp.scenes.hard_scenes.hard_layout_files`: 24 generated tightly packed scenes, at least half of
-#: their objects locked, and the 8 locking layouts; episode i plays file i mod 32).
-SCENARIOS = ("train", "min", "medium", "max", "complicated", "hard")
+#: their objects locked, and the 8 locking layouts; episode i plays file i mod 32) or ``"hard_unseen"`` (the 24 scene
+#: files of :func:`~maniskill_pnp.scenes.packed_families.unseen_scene_files`: tightly packed arrangements of families
+#: that no training draws).
+SCENARIOS = ("train", "min", "medium", "max", "complicated", "hard", "hard_unseen")
+#: The scenarios that play scene files.
+FILE_SCENARIOS = ("hard", "hard_unseen")
 
 
 def is_scenario(name: str) -> bool:
@@ -44,18 +48,22 @@ def scenario_options(name: str, task: str) -> dict:
         return dict(num_objects=int(name))
     if name == "complicated" and task == "grasp_slide":
         return dict(layout="complicated")
-    if name == "hard":
+    if name in FILE_SCENARIOS:
         return dict(layout_file=[str(p) for p in scenario_layout_files(name)])
     return dict(num_objects=name)
 
 
 def scenario_layout_files(name: str) -> list[Path] | None:
-    """The scene files a scenario plays, one per episode in turn (``"hard"``), else None (drawn scenes)."""
-    if name != "hard":
-        return None
-    from maniskill_pnp.scenes.hard_scenes import hard_layout_files
+    """The scene files a scenario plays, one per episode in turn (:data:`FILE_SCENARIOS`), else None (drawn scenes)."""
+    if name == "hard":
+        from maniskill_pnp.scenes.hard_scenes import hard_layout_files
 
-    return hard_layout_files()
+        return hard_layout_files()
+    if name == "hard_unseen":
+        from maniskill_pnp.scenes.packed_families import unseen_scene_files
+
+        return unseen_scene_files()
+    return None
 
 
 def make_workspace(cfg: ClutterConfig) -> WorkspaceSpec:
