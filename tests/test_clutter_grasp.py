@@ -69,6 +69,8 @@ def test_bad_actions_raise_before_moving(env, action):
         (dict(object_kinds=("torus",)), "object_kinds"),
         (dict(control_mode="pd_ee_delta_pose"), "pd_joint_pos"),
         (dict(obs_mode="state"), "obs_mode"),
+        (dict(loss_cost=-1.0), "loss_cost must be a finite number >= 0"),
+        (dict(loss_cost=float("nan")), "loss_cost must be a finite number >= 0"),
         (dict(layout=[(ObjectSpec("cuboid", (0.02, 0.02, 0.02)), (-0.06, -0.1, 0.02))] * 2), "overlap"),
     ],
 )

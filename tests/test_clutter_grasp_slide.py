@@ -132,16 +132,18 @@ def test_bad_actions_name_the_valid_range_before_moving(two_cubes, action):
     assert two_cubes.unwrapped.num_actions[0] == 0
 
 
-def test_slide_that_knocks_an_object_out_of_the_workspace_is_a_failure():
-    """Left of rotation 0 is +y: a cube 2.5 cm inside the +y edge, pushed from 4 cm behind it, leaves the workspace."""
+@pytest.mark.parametrize("loss_cost", [0.0, 1.5])
+def test_slide_that_knocks_an_object_out_of_the_workspace_is_a_failure(loss_cost):
+    """Left of rotation 0 is +y: a cube 2.5 cm inside the +y edge, pushed from 4 cm behind it, leaves the workspace;
+    with a loss cost, the lost object costs that much reward."""
     edge = (CX, CY + WS.side / 2 - 0.025, 0.02)
-    e = gym.make("ClutterGraspSlide-v1", workspace=WS, layout=[(CUBE, edge)], **CPU)
+    e = gym.make("ClutterGraspSlide-v1", workspace=WS, layout=[(CUBE, edge)], loss_cost=loss_cost, **CPU)
     try:
         e.reset(seed=0)
         reward, info = act(e, "left_slide", 0, np.asarray(edge) - [0.0, 0.04, 0.0])
         assert info["knocked_out"] == 1 and info["lost_objects"] == 1, info
         assert {k: int(info[k]) for k in LOSS_CAUSES} == dict(dict.fromkeys(LOSS_CAUSES, 0), lost_by_slide=1)
-        assert reward == 0.0 and info["consecutive_failures"] == 1 and "out of the workspace" in info["reason"]
+        assert reward == -loss_cost and info["consecutive_failures"] == 1 and "out of the workspace" in info["reason"]
     finally:
         e.close()
 

@@ -100,17 +100,19 @@ def test_unlock_scheme_pays_the_slide_that_frees_a_bar_and_not_one_that_only_mov
 
 
 def test_config_fields_reach_the_training_env_only():
-    cfg = ClutterConfig.from_preset("gs-cpu-equi-hard", heightmap_size=32, num_rotations=4)
+    cfg = ClutterConfig.from_preset("gs-cpu-equi-hard", heightmap_size=32, num_rotations=4, loss_cost=1.0)
     assert (cfg.hard_fraction, cfg.guard_force, cfg.reward_scheme) == (0.5, 20.0, "unlock")
     env = make_env(cfg)
     try:
         base = env.base_env
         assert base.guard_force == 20.0 and base.clutter.arrangement_fraction == 0.5 and base.reward_scheme == "unlock"
+        assert base.loss_cost == 1.0  # the reward scheme's cost of a loss, in training and evaluation alike
     finally:
         env.close()
     for bad, match in (
         (dict(hard_fraction=0.8, packed_fraction=0.3), "hard_fraction"),
         (dict(guard_force=-1.0), "guard_force"),
+        (dict(loss_cost=-0.5), "loss_cost"),
         (dict(reward_scheme="pushy"), "reward scheme"),
     ):
         with pytest.raises(ValueError, match=match):

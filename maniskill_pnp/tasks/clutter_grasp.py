@@ -30,6 +30,8 @@ layouts (:meth:`ClutterGraspEnv._resolve_layouts`).
 
 from __future__ import annotations
 
+import math
+
 from contextlib import contextmanager
 import logging
 import os
@@ -150,7 +152,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     into the bin and goes back out of the cameras' view. Observation: ``color_heightmap`` (uint8 H×W×3) and
     ``depth_heightmap`` (float32 H×W, metres above the table), fused from a top-down narrow-FOV camera and a
     perspective camera (plus raw camera data with ``include_camera_data=True``).
-    Reward: 1 placed in the bin, 0.5 grasped but not placed, 0 otherwise.
+    Reward: 1 placed in the bin, 0.5 grasped but not placed, 0 otherwise; with ``loss_cost=c``, c less per object the
+    action lost off the workspace (``info["knocked_out"]``, whatever moved it).
 
     **Randomizations:**
     - which pool objects form the clutter and how many (``num_objects``: an int, a (min, max) range, or a
@@ -206,6 +209,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         include_camera_data: bool = False,
         planner_seed: int = 0,
         guard_force: float | None = None,
+        loss_cost: float = 0.0,
         **kwargs,
     ):
         """Args beyond ManiSkill's: ``workspace`` (geometry, cameras, bin), ``num_objects``, ``object_kinds``,
@@ -221,8 +225,12 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         ``max_actions`` (truncation; default 3 × the largest object count), ``include_camera_data`` (raw RGB-D and
         camera parameters in the observation), the motion planner's seed, and ``guard_force`` (N: grasp descents and
         slide lowerings stop, and fail, when contacts push the gripper up by more than this, see
-        :class:`~maniskill_pnp.planning.primitives.MotionPrimitives`; None: unguarded)."""
+        :class:`~maniskill_pnp.planning.primitives.MotionPrimitives`; None: unguarded), and ``loss_cost`` (what each
+        object an action loses off the workspace, by any cause, takes off its reward; 0: losses cost nothing beyond
+        the reward they forgo)."""
         guard_force = check_guard_force(guard_force)  # here: the primitives are only built at the first step
+        if isinstance(loss_cost, bool) or not isinstance(loss_cost, (int, float)) or not 0.0 <= loss_cost < math.inf:  # NaN fails
+            raise ValueError(f"loss_cost must be a finite number >= 0 (reward taken off per object lost), got {loss_cost!r}")
         self.workspace = workspace or WorkspaceSpec()
         if isinstance(num_objects, str):
             num_objects = density_range(num_objects)
@@ -275,6 +283,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.include_camera_data = include_camera_data
         self.planner_seed = planner_seed
         self.guard_force = guard_force
+        self.loss_cost = float(loss_cost)
         s = self.workspace.heightmap_size
         self.action_layout = PixelActionLayout(len(self.PRIMITIVES), self.workspace.num_rotations, s, s)
         self.home_qpos = camera_clear_home()
@@ -438,6 +447,15 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             self.clutter.empty_bin(range(self.num_envs), self.device)
 
     def _judge(self, env: int, decision: Decision, result: dict, before: dict) -> Judgement:
+        """The primitive's judgement (:meth:`_judge_action`), less ``loss_cost`` per object the action lost."""
+        judged = self._judge_action(env, decision, result, before)
+        lost = int(judged.outcome["knocked_out"])
+        if not (self.loss_cost and lost):
+            return judged
+        return Judgement(judged.reward - self.loss_cost * lost, judged.success, judged.outcome)
+
+    def _judge_action(self, env: int, decision: Decision, result: dict, before: dict) -> Judgement:
+        """A grasp's reward: ``place`` when its object reached the bin, ``grasp`` when it was only grasped."""
         grasped, placed = result["grasp_success"], result["place_success"]
         r = self.rewards
         moves = self._object_moves(env, before, decision.primitive, result)

@@ -86,7 +86,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
     apart objects that no grasp fits. Observations as ClutterGrasp-v1's.
     Reward (``reward_scheme="default"``): 1 placed in the bin, 0.8 grasped but not placed, 0.5 a slide that
     changed the heightmap without knocking an object out of the workspace, 0 otherwise; ``"no_slide_reward"`` gives
-    slides 0.
+    slides 0; with ``loss_cost=c``, c less per object the action lost off the workspace (a slide's or a grasp's).
 
     **Randomizations:**
     - random clutters as ClutterGrasp-v1's: ``num_objects`` (10 by default; presets ``"min"`` 6–10,
@@ -214,9 +214,9 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         now = locked(after, [i for i in candidates if was.get(i)])
         return sum(1 for i, is_locked in now.items() if not is_locked)
 
-    def _judge(self, env, decision, result, before):
+    def _judge_action(self, env, decision, result, before):
         if decision.primitive == "grasp":
-            return super()._judge(env, decision, result, before)
+            return super()._judge_action(env, decision, result, before)
         n = changed_pixels(before["height"], self._height[env])
         changed = n > change_threshold(*before["height"].shape)
         moves = self._object_moves(env, before, decision.primitive, result)

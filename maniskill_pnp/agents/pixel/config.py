@@ -61,6 +61,10 @@ class ClutterConfig(RunConfig):
     """Reward scheme of ClutterGraspSlide-v1: "default" (a slide pays for any change of the scene),
     "no_slide_reward" or "unlock" (a slide pays only when it makes a locked object graspable); must be "default" for
     task grasp."""
+    loss_cost: float = 0.0
+    """Reward taken off per object an action loses off the workspace, by any cause (a slide's push, a neighbour set
+    rolling by a grasp, a drop in transit or at release; the task's ``loss_cost``); 0: a loss costs only the reward
+    it forgoes."""
     backbone: str = "small"
     """Feature trunk of the Q network: "densenet121" (thesis), "resnet101", their stride-8 cuts "densenet121-s8" and
     "resnet101-s8" (the trunk pair at 64 px), or "small" (ResNet-18 to layer2), each run on
@@ -221,6 +225,8 @@ class ClutterConfig(RunConfig):
                              f"(packed_fraction {self.packed_fraction})")
         if self.mask_grasp_fit and not self.mask_empty:
             raise ValueError("mask_grasp_fit refines the material mask: it needs mask_empty")
+        if not (math.isfinite(self.loss_cost) and self.loss_cost >= 0):
+            raise ValueError(f"loss_cost must be a finite number >= 0 (reward taken off per object lost), got {self.loss_cost}")
         if self.guard_force is not None and not (math.isfinite(self.guard_force) and self.guard_force > 0):
             raise ValueError(f"guard_force must be a positive force in N (or None: unguarded), got {self.guard_force}")
         if not math.isfinite(self.slide_margin) or (self.slide_margin and self.task != "grasp_slide"):

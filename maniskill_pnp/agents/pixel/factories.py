@@ -83,6 +83,8 @@ def make_env(cfg: ClutterConfig, scenario: str = "train", **task_kwargs):
                    sim_backend="physx_cpu", render_backend="cpu")
     if cfg.task == "grasp_slide":
         options["reward_scheme"] = cfg.reward_scheme
+    if cfg.loss_cost:
+        options["loss_cost"] = cfg.loss_cost
     if scenario == "train" and not {"layout", "layout_file"} & task_kwargs.keys():  # the training clutters only
         options.update({k: getattr(cfg, k) for k in ("packed_fraction", "hard_fraction") if getattr(cfg, k)})
     if scenario == "train" and cfg.guard_force is not None:
