@@ -6,7 +6,7 @@ Kinds and their ``size`` parameters (metres):
 kind       size                                                   collision shapes
 =========  =====================================================  ==========================================
 cuboid     (hx, hy, hz) half extents                              one box
-cylinder   (radius, half_height), upright                         one cylinder
+cylinder   (radius, half_height), upright                         one convex mesh (a prism of 32 sides)
 sphere     (radius,)                                              one sphere
 L          (length, width, thickness, height)                     two boxes
 T          (length, width, thickness, height)                     two boxes
@@ -21,7 +21,11 @@ Every object is centred on its axis-aligned bounding box, rests on its bottom fa
 2 cm high and at most 7 cm across in at least one horizontal direction (what the Panda's jaws, 8 cm open, take).
 Convex meshes are written once to a cache folder (``MANISKILL_PNP_CACHE`` or ``~/.cache/maniskill_pnp``, see
 :func:`~maniskill_pnp.cache.cache_dir` ``("meshes")``) and loaded with the builder's convex-mesh API; non-convex
-kinds are unions of convex parts in one actor.
+kinds are unions of convex parts in one actor. A cylinder collides as a prism of :data:`CYLINDER_SIDES` sides
+inscribed in it (0.5% of its radius inside the circle at most), the tessellation PhysX's maintainers advise: SAPIEN's
+own cylinder shape gains energy when it rolls (a cylinder of 2 cm radius lying on the table, set rolling at 0.1 m/s,
+runs at 0.5 m/s two seconds later, at the tasks' 100 Hz), a convex prism does not. Its visual shape stays the
+cylinder, and :func:`collision_shapes` gives the exact cylinder.
 
 A ``mesh`` object is the file's mesh, scaled (one factor or three per-axis factors) and centred on its bounding box,
 in the file's axes (z up). Its visual shape is the file itself (in ``color``, or with the file's own materials and
@@ -64,6 +68,8 @@ SIZE_PARAMS = {
 }
 _SIZE_ARITY = {kind: len(names) for kind, names in SIZE_PARAMS.items()}
 
+#: Sides of the convex prism a cylinder collides as (see the module docstring).
+CYLINDER_SIDES = 32
 #: Graspability limits (m).
 MAX_GRASP_WIDTH = 0.07
 MIN_HEIGHT = 0.02
@@ -261,7 +267,13 @@ class ObjectSpec:
         ]
 
     def mesh_vertices(self) -> np.ndarray | None:
-        """Vertices (object frame, centred on the bounding box) of the convex-mesh kinds, else None."""
+        """Vertices (object frame, centred on the bounding box) of the kinds that collide as one convex mesh (wedge,
+        hull, and the prism a cylinder collides as), else None."""
+        if self.kind == "cylinder":
+            radius, half_height = self.size
+            angle = 2 * np.pi * np.arange(CYLINDER_SIDES) / CYLINDER_SIDES
+            ring = radius * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+            return np.concatenate([np.c_[ring, np.full(CYLINDER_SIDES, z)] for z in (-half_height, half_height)])
         if self.kind == "wedge":
             lx, ly, lz = self.size
             tri = np.array([[-lx / 2, -lz / 2], [lx / 2, -lz / 2], [-lx / 2, lz / 2]])  # right triangle in x-z
@@ -302,18 +314,16 @@ def mesh_file(spec: ObjectSpec) -> Path:
     return path
 
 
-_UPRIGHT = sapien.Pose(q=[np.sqrt(0.5), 0.0, np.sqrt(0.5), 0.0])  # SAPIEN cylinders lie along x
+_UPRIGHT = sapien.Pose(q=[np.sqrt(0.5), 0.0, np.sqrt(0.5), 0.0])  # SAPIEN cylinder visuals lie along x
 
 
 def add_collisions(builder, spec: ObjectSpec, material=None) -> None:
     """Add the collision shapes of ``spec`` (object frame) to an actor builder (SAPIEN's or ManiSkill's); ``material``:
     a physical material, or None for the default one."""
     s = spec.size
-    if spec.kind == "cylinder":
-        builder.add_cylinder_collision(pose=_UPRIGHT, radius=s[0], half_length=s[1], material=material)
-    elif spec.kind == "sphere":
+    if spec.kind == "sphere":
         builder.add_sphere_collision(radius=s[0], material=material)
-    elif spec.kind in ("wedge", "hull"):
+    elif spec.kind in ("cylinder", "wedge", "hull"):
         builder.add_convex_collision_from_file(filename=str(mesh_file(spec)), material=material)
     elif spec.kind == MESH_KIND:
         from maniskill_pnp.scenes.meshes import convex_parts
@@ -347,7 +357,8 @@ def add_visuals(builder, spec: ObjectSpec) -> None:
 
 
 def collision_shapes(spec: ObjectSpec) -> list[tuple[str, sapien.Pose, tuple]]:
-    """The collision shapes :func:`add_collisions` adds, as ``(kind, local pose, parameters)`` in the object frame:
+    """The collision shapes :func:`add_collisions` adds (a cylinder as the exact cylinder its prism approximates), as
+    ``(kind, local pose, parameters)`` in the object frame:
     ``("box", pose, (half_size,))``, ``("cylinder", pose, (radius, half_height))`` along the pose's z axis,
     ``("sphere", pose, (radius,))`` or ``("convex", pose, (vertices, triangles))``."""
     s = spec.size

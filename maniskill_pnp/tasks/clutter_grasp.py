@@ -54,6 +54,7 @@ from maniskill_pnp.planning.primitives import MotionPrimitives, check_guard_forc
 from maniskill_pnp.planning.robot import panda_spec
 from maniskill_pnp.cell.bin import build_bin
 from maniskill_pnp.scenes.clutter import density_range, validate_layout
+from maniskill_pnp.scenes.rolling import LEVER_ARM, RollingResistance
 from maniskill_pnp.scenes.clutter_pool import ClutterPool, SettleSpec
 from maniskill_pnp.cell.heightmap import heightmaps_from_sensors
 from maniskill_pnp.scenes.objects import KINDS, ObjectSpec
@@ -210,6 +211,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         planner_seed: int = 0,
         guard_force: float | None = None,
         loss_cost: float = 0.0,
+        rolling_lever_arm: float = LEVER_ARM,
         **kwargs,
     ):
         """Args beyond ManiSkill's: ``workspace`` (geometry, cameras, bin), ``num_objects``, ``object_kinds``,
@@ -227,7 +229,9 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         slide lowerings stop, and fail, when contacts push the gripper up by more than this, see
         :class:`~maniskill_pnp.planning.primitives.MotionPrimitives`; None: unguarded), and ``loss_cost`` (what each
         object an action loses off the workspace, by any cause, takes off its reward; 0: losses cost nothing beyond
-        the reward they forgo)."""
+        the reward they forgo), and ``rolling_lever_arm`` (m: the lever arm of the rolling friction of spheres on the
+        table, which PhysX leaves out, see :mod:`~maniskill_pnp.scenes.rolling`; 0: none, as PhysX alone; the CPU
+        simulation only)."""
         guard_force = check_guard_force(guard_force)  # here: the primitives are only built at the first step
         if isinstance(loss_cost, bool) or not isinstance(loss_cost, (int, float)) or not 0.0 <= loss_cost < math.inf:  # NaN fails
             raise ValueError(f"loss_cost must be a finite number >= 0 (reward taken off per object lost), got {loss_cost!r}")
@@ -284,6 +288,10 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.planner_seed = planner_seed
         self.guard_force = guard_force
         self.loss_cost = float(loss_cost)
+        if isinstance(rolling_lever_arm, bool) or not isinstance(rolling_lever_arm, (int, float)):
+            raise ValueError(f"rolling_lever_arm must be a length in m (0: no rolling friction), got {rolling_lever_arm!r}")
+        self.rolling = RollingResistance(self.workspace.table_z, float(rolling_lever_arm))
+        self._rolling_bodies: list = []  # (PhysX body, radius) of every pool sphere, CPU simulation only
         s = self.workspace.heightmap_size
         self.action_layout = PixelActionLayout(len(self.PRIMITIVES), self.workspace.num_rotations, s, s)
         self.home_qpos = camera_clear_home()
@@ -351,6 +359,13 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.bin = build_bin(self.scene, self.workspace.bin)
         self.clutter.build(self.scene)
         self.prims = None  # a new scene (reconfiguration) needs new primitives
+        self._rolling_bodies = [] if self.gpu_sim_enabled or not self.rolling.lever_arm else [
+            (body, spec.size[0]) for spec, actor in zip(self.clutter.specs, self.clutter.actors) if spec.kind == "sphere"
+            for body in actor._bodies
+        ]
+
+    def _before_simulation_step(self):
+        self.rolling.apply(self._rolling_bodies, 1.0 / self.sim_freq)
 
     # ------------------------------------------------------------------ episode
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
