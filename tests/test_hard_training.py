@@ -15,7 +15,9 @@ from maniskill_pnp.scenes.complicated_layouts import COMPLICATED_LAYOUT_NAMES
 from maniskill_pnp.scenes.hard_scenes import (
     HARD_SCENE_COUNT, HARD_SEED, HARD_TRAIN_COUNT, HARD_TRAIN_SEED, hard_layout, hard_train_files, main,
 )
+from maniskill_pnp.scenes.hard_scenes import hard_scene_files
 from maniskill_pnp.scenes.objects import ObjectSpec
+from maniskill_pnp.scenes.packed_families import PACKED_TRAIN_COUNT, training_arrangement_files, unseen_scene_files
 from maniskill_pnp.scenes.scene_file import load_scene
 from maniskill_pnp.cell.workspace import WorkspaceSpec
 
@@ -100,19 +102,25 @@ def test_unlock_scheme_pays_the_slide_that_frees_a_bar_and_not_one_that_only_mov
 
 
 def test_config_fields_reach_the_training_env_only():
-    cfg = ClutterConfig.from_preset("gs-cpu-equi-hard", heightmap_size=32, num_rotations=4, loss_cost=1.0)
+    cfg = ClutterConfig.from_preset("gs-cpu-equi-hard", heightmap_size=32, num_rotations=4, loss_cost=1.0,
+                                    hard_sets=("hard_train", "packed_train"))
     assert (cfg.hard_fraction, cfg.guard_force, cfg.reward_scheme) == (0.5, 20.0, "unlock")
     env = make_env(cfg)
     try:
         base = env.base_env
         assert base.guard_force == 20.0 and base.clutter.arrangement_fraction == 0.5 and base.reward_scheme == "unlock"
         assert base.loss_cost == 1.0  # the reward scheme's cost of a loss, in training and evaluation alike
+        # both training sets, never a test set: the arrangements are those of the two sets' files
+        files = training_arrangement_files(("hard_train", "packed_train"))
+        assert len(base.clutter.arrangement_slots) == len(files) == HARD_TRAIN_COUNT + PACKED_TRAIN_COUNT
+        assert not set(files) & set(unseen_scene_files() + hard_scene_files())
     finally:
         env.close()
     for bad, match in (
         (dict(hard_fraction=0.8, packed_fraction=0.3), "hard_fraction"),
         (dict(guard_force=-1.0), "guard_force"),
         (dict(loss_cost=-0.5), "loss_cost"),
+        (dict(hard_sets=("hard",)), "unknown hard_sets"),
         (dict(reward_scheme="pushy"), "reward scheme"),
     ):
         with pytest.raises(ValueError, match=match):

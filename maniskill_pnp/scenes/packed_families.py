@@ -25,8 +25,8 @@ Two shipped sets, written by ``python -m maniskill_pnp.scenes.packed_families [-
 * ``scenes/hard_unseen/unseen_<ii>.yaml``: :data:`UNSEEN_COUNT` scenes of the :data:`HELD_OUT_FAMILIES` (seeds
   :data:`UNSEEN_SEED` + i), the ``hard_unseen`` scenario of ``eval-clutter``. No training draws these families.
 * ``scenes/packed_train/train_<ii>.yaml``: :data:`PACKED_TRAIN_COUNT` scenes of the :data:`TRAIN_FAMILIES` (seeds
-  :data:`PACKED_TRAIN_SEED` + i), which the clutter tasks' ``hard_fraction`` draws beside the hard set's training
-  arrangements.
+  :data:`PACKED_TRAIN_SEED` + i), which the clutter tasks' ``hard_fraction`` draws from with
+  ``hard_sets=("hard_train", "packed_train")`` (:data:`TRAINING_SETS`), beside the hard set's training arrangements.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ import sapien
 
 from maniskill_pnp.cell.workspace import WorkspaceSpec
 from maniskill_pnp.scenes.grasp_feasibility import grasp_feasibility
+from maniskill_pnp.scenes.hard_scenes import hard_train_files
 from maniskill_pnp.scenes.layout_check import check_layout
 from maniskill_pnp.scenes.objects import PALETTE, ObjectSpec
 
@@ -69,6 +70,23 @@ def unseen_scene_files() -> list[Path]:
 def packed_train_files() -> list[Path]:
     """The shipped training arrangements of the training families, in seed order."""
     return [PACKED_TRAIN_DIR / f"train_{i:02d}.yaml" for i in range(PACKED_TRAIN_COUNT)]
+
+
+#: The sets of training arrangements a clutter task's ``hard_fraction`` can draw from (``hard_sets=``): the hard
+#: set's generator at training seeds (rows and blocks), and the training families of this module. Never a test set.
+TRAINING_SETS = {"hard_train": hard_train_files, "packed_train": packed_train_files}
+
+
+def training_arrangement_files(sets: tuple[str, ...] = ("hard_train",)) -> list[Path]:
+    """The scene files of the training arrangement sets named in ``sets`` (:data:`TRAINING_SETS`), in order.
+
+    Raises:
+        ValueError: an unknown or empty set list.
+    """
+    unknown = [name for name in sets if name not in TRAINING_SETS]
+    if unknown or not sets:
+        raise ValueError(f"unknown training arrangement sets {unknown or list(sets)!r}; valid: {list(TRAINING_SETS)}")
+    return [path for name in sets for path in TRAINING_SETS[name]()]
 
 
 def _half_footprint(spec: ObjectSpec, yaw: float) -> np.ndarray:

@@ -202,6 +202,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         min_gap: float = 0.01,
         packed_fraction: float = 0.0,
         hard_fraction: float = 0.0,
+        hard_sets: tuple[str, ...] = ("hard_train",),
         layout=None,
         layout_file=None,
         objects=None,
@@ -219,6 +220,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         clusters instead, see :func:`~maniskill_pnp.scenes.clutter.sample_packed`), ``hard_fraction`` (share of random
         clutters replaced by one of the hard *training* arrangements of
         :func:`~maniskill_pnp.scenes.hard_scenes.hard_train_files`, at a random yaw; never the test set's),
+        ``hard_sets`` (the training arrangement sets it draws from, names of
+        :data:`~maniskill_pnp.scenes.packed_families.TRAINING_SETS`: ``"hard_train"``, ``"packed_train"``),
         ``layout`` (explicit list of (ObjectSpec, pose); overrides the
         random clutter), ``layout_file`` (a scene file, or a list of them: one layout each, episodes draw among them;
         not with ``layout``), ``objects`` (what random clutters are made of instead of procedural ``object_kinds``:
@@ -280,7 +283,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.clutter = ClutterPool(self.workspace, n, layouts, num_objects_range, kinds, bool(loosely_packed), float(min_gap),
                                    packed_fraction=float(packed_fraction), size=self.POOL_SIZE, library_seed=self.LIBRARY_SEED, settle=self.SETTLE,
                                    max_speed=self.MAX_OBJECT_SPEED, library=library,
-                                   arrangements=self._hard_training_layouts() if hard_fraction else None,
+                                   arrangements=self._hard_training_layouts(tuple(hard_sets)) if hard_fraction else None,
                                    arrangement_fraction=float(hard_fraction))
         self.max_consecutive_failures = max_consecutive_failures
         self.max_actions = int(max_actions) if max_actions is not None else 3 * num_objects_range[1]
@@ -532,11 +535,11 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         """
         return None if layout is None else [validate_layout(layout, self.workspace)]
 
-    def _hard_training_layouts(self) -> list[list[tuple[ObjectSpec, sapien.Pose]]]:
-        """The hard training arrangements (``hard_fraction``), in this task's workspace."""
-        from maniskill_pnp.scenes.hard_scenes import hard_train_files
+    def _hard_training_layouts(self, sets: tuple[str, ...]) -> list[list[tuple[ObjectSpec, sapien.Pose]]]:
+        """The training arrangements of the sets ``sets`` (``hard_fraction``), in this task's workspace."""
+        from maniskill_pnp.scenes.packed_families import training_arrangement_files
 
-        return [load_scene(f, self.workspace) for f in hard_train_files()]
+        return [load_scene(f, self.workspace) for f in training_arrangement_files(sets)]
 
     def _load_layout_files(self, layout_file, layout) -> list[list[tuple[ObjectSpec, sapien.Pose]]]:
         """The layouts of the scene file(s) ``layout_file`` (one path or a list of them), validated.

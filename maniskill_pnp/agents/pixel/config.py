@@ -96,6 +96,10 @@ class ClutterConfig(RunConfig):
     """Share of training episodes that play one of the hard training arrangements (tightly packed rows and blocks,
     at least half of their objects locked; a set disjoint from the ``hard`` test scenes, see
     maniskill_pnp.scenes.hard_scenes) at a random yaw, instead of a random clutter."""
+    hard_sets: tuple[str, ...] = ("hard_train",)
+    """The training arrangement sets ``hard_fraction`` draws from: ``"hard_train"`` (rows and blocks, the hard set's
+    generator at training seeds) and/or ``"packed_train"`` (arches and U shapes around blocks, L and T interlocks, a
+    tall block among low ones; see maniskill_pnp.scenes.packed_families). Never a test set."""
     guard_force: float | None = None
     """Guarded grasps and slides (N): a descent stops, and the action fails, when contacts push the gripper up by
     more than this, as a real Panda's collision reflex would (20 N: libfranka's example threshold); None: unguarded.
@@ -225,6 +229,10 @@ class ClutterConfig(RunConfig):
                              f"(packed_fraction {self.packed_fraction})")
         if self.mask_grasp_fit and not self.mask_empty:
             raise ValueError("mask_grasp_fit refines the material mask: it needs mask_empty")
+        from maniskill_pnp.scenes.packed_families import TRAINING_SETS
+
+        if not self.hard_sets or any(name not in TRAINING_SETS for name in self.hard_sets):
+            raise ValueError(f"unknown hard_sets {list(self.hard_sets)}; valid: {list(TRAINING_SETS)}")
         if not (math.isfinite(self.loss_cost) and self.loss_cost >= 0):
             raise ValueError(f"loss_cost must be a finite number >= 0 (reward taken off per object lost), got {self.loss_cost}")
         if self.guard_force is not None and not (math.isfinite(self.guard_force) and self.guard_force > 0):

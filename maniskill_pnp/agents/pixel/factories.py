@@ -87,6 +87,8 @@ def make_env(cfg: ClutterConfig, scenario: str = "train", **task_kwargs):
         options["loss_cost"] = cfg.loss_cost
     if scenario == "train" and not {"layout", "layout_file"} & task_kwargs.keys():  # the training clutters only
         options.update({k: getattr(cfg, k) for k in ("packed_fraction", "hard_fraction") if getattr(cfg, k)})
+        if cfg.hard_fraction:
+            options["hard_sets"] = tuple(cfg.hard_sets)
     if scenario == "train" and cfg.guard_force is not None:
         options["guard_force"] = cfg.guard_force
     options.update(scenario_options(scenario, cfg.task), **task_kwargs)
