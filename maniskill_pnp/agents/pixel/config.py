@@ -231,6 +231,7 @@ class ClutterConfig(RunConfig):
             raise ValueError("mask_grasp_fit refines the material mask: it needs mask_empty")
         from maniskill_pnp.scenes.packed_families import TRAINING_SETS
 
+        object.__setattr__(self, "hard_sets", tuple(self.hard_sets))
         if not self.hard_sets or any(name not in TRAINING_SETS for name in self.hard_sets):
             raise ValueError(f"unknown hard_sets {list(self.hard_sets)}; valid: {list(TRAINING_SETS)}")
         if not (math.isfinite(self.loss_cost) and self.loss_cost >= 0):
