@@ -57,9 +57,10 @@ def _check_scene(args) -> None:
         except (FileNotFoundError, SceneFileError, ValueError) as e:
             raise SystemExit(f"check-scene: {e}") from e
         print(format_report(str(path), grasps))
+        scene_locked = sum(g.locked for g in grasps)
         total += len(grasps)
-        locked += sum(g.locked for g in grasps)
-        half_locked += 2 * sum(g.locked for g in grasps) >= len(grasps)
+        locked += scene_locked
+        half_locked += 2 * scene_locked >= len(grasps)
     if len(files) > 1:
         print(f"all {len(files)} scenes: {total} objects, {locked} locked; {half_locked} scenes with at least half of "
               "their objects locked")

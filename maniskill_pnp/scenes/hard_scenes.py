@@ -94,19 +94,64 @@ def _cells(rng: np.random.Generator, family: str) -> list[tuple[ObjectSpec, floa
     return out
 
 
+def place_parts(parts, turn: float, centre: np.ndarray, workspace: WorkspaceSpec) -> list[tuple[ObjectSpec, sapien.Pose]]:
+    """An arrangement's parts ``(spec, x, y, yaw)`` (its own frame) turned by ``turn`` as one piece about their mean
+    centre, which goes to ``centre`` (world xy); each part standing on the table at yaw ``turn + yaw``."""
+    mid = np.mean([[x, y] for _, x, y, _ in parts], axis=0)
+    rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+    layout = []
+    for spec, x, y, yaw in parts:
+        xy = centre + rot @ (np.array([x, y]) - mid)
+        q = [math.cos((turn + yaw) / 2), 0.0, 0.0, math.sin((turn + yaw) / 2)]
+        layout.append((spec, sapien.Pose(p=[xy[0], xy[1], workspace.table_z + spec.extents[2] / 2], q=q)))
+    return layout
+
+
+def first_qualifying_draw(rng: np.random.Generator, draw, workspace: WorkspaceSpec, max_draws: int,
+                          objects: tuple[int, float] = (1, math.inf)):
+    """The first of ``max_draws`` draws ``draw(rng) -> (family, layout)`` that has ``objects[0]..objects[1]``
+    objects, passes :func:`~maniskill_pnp.scenes.layout_check.check_layout` and has at least half of its objects
+    locked: ``(family, layout, locked count)``, or None. A draw that raises ValueError (a part the gripper cannot
+    take) is passed over like one that fails the check."""
+    for _ in range(max_draws):
+        try:
+            family, layout = draw(rng)
+            if not objects[0] <= len(layout) <= objects[1]:
+                continue
+            check_layout(layout, workspace)
+        except ValueError:
+            continue
+        locked = sum(g.locked for g in grasp_feasibility(layout, workspace))
+        if 2 * locked >= len(layout):
+            return family, layout, locked
+    return None
+
+
+def write_scene_set(out: Path, count: int, seed: int, layout_of, prefix: str, set_name: str, source: str) -> list[Path]:
+    """Write the arrangements ``layout_of(seed + i, workspace) -> (family, layout, locked)`` of ``count`` seeds as
+    ``out/<prefix>_<ii>.yaml`` (workspace frame), each described as of ``set_name`` and written by ``source``; returns
+    the paths."""
+    from maniskill_pnp.scenes.scene_file import save_scene
+
+    workspace = WorkspaceSpec()
+    paths = []
+    for i in range(count):
+        family, layout, locked = layout_of(seed + i, workspace)
+        name = f"{prefix}_{i:02d}"
+        path = save_scene(Path(out) / f"{name}.yaml", layout, workspace, name=name,
+                          description=f"{set_name} set, seed {seed + i}: {family}, {len(layout)} objects, {locked} "
+                                      f"locked at the start ({source})")
+        print(f"{path}: {family}, {len(layout)} objects, {locked} locked", flush=True)
+        paths.append(path)
+    return paths
+
+
 def _draw(rng: np.random.Generator, workspace: WorkspaceSpec) -> tuple[str, list[tuple[ObjectSpec, sapien.Pose]]]:
     family = FAMILIES[int(rng.integers(len(FAMILIES)))]
-    cells = _cells(rng, family)
-    mid = np.mean([[x, y] for _, x, y in cells], axis=0)
+    parts = [(spec, x, y, 0.0) for spec, x, y in _cells(rng, family)]
     yaw = rng.uniform(0.0, math.pi)
-    rot = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
     centre = np.asarray(workspace.center) + rng.uniform(-0.02, 0.02, size=2)
-    quat = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
-    layout = []
-    for spec, x, y in cells:
-        xy = centre + rot @ (np.array([x, y]) - mid)
-        layout.append((spec, sapien.Pose(p=[xy[0], xy[1], workspace.table_z + spec.extents[2] / 2], q=quat)))
-    return family, layout
+    return family, place_parts(parts, yaw, centre, workspace)
 
 
 def hard_layout(seed: int, workspace: WorkspaceSpec | None = None) -> tuple[str, list[tuple[ObjectSpec, sapien.Pose]], int]:
@@ -117,36 +162,17 @@ def hard_layout(seed: int, workspace: WorkspaceSpec | None = None) -> tuple[str,
         RuntimeError: no draw of :data:`MAX_DRAWS` qualified.
     """
     workspace = workspace or WorkspaceSpec()
-    rng = np.random.default_rng(seed)
-    for _ in range(MAX_DRAWS):
-        family, layout = _draw(rng, workspace)
-        try:
-            check_layout(layout, workspace)
-        except ValueError:
-            continue
-        locked = sum(g.locked for g in grasp_feasibility(layout, workspace))
-        if 2 * locked >= len(layout):
-            return family, layout, locked
-    raise RuntimeError(f"no hard arrangement of seed {seed} in {MAX_DRAWS} draws")
+    found = first_qualifying_draw(np.random.default_rng(seed), lambda rng: _draw(rng, workspace), workspace, MAX_DRAWS)
+    if found is None:
+        raise RuntimeError(f"no hard arrangement of seed {seed} in {MAX_DRAWS} draws")
+    return found
 
 
 def write_hard_scenes(out: Path = HARD_SCENES_DIR, count: int = HARD_SCENE_COUNT, seed: int = HARD_SEED,
                       prefix: str = "hard") -> list[Path]:
     """Write ``count`` hard scenes of seeds ``seed + i`` as ``out/<prefix>_<ii>.yaml`` (workspace frame); returns the
     paths."""
-    from maniskill_pnp.scenes.scene_file import save_scene
-
-    workspace = WorkspaceSpec()
-    paths = []
-    for i in range(count):
-        family, layout, locked = hard_layout(seed + i, workspace)
-        name = f"{prefix}_{i:02d}"
-        path = save_scene(Path(out) / f"{name}.yaml", layout, workspace, name=name,
-                          description=f"{prefix} set, seed {seed + i}: {family}, {len(layout)} objects, {locked} locked "
-                                      "at the start (maniskill_pnp.scenes.hard_scenes)")
-        print(f"{path}: {family}, {len(layout)} objects, {locked} locked")
-        paths.append(path)
-    return paths
+    return write_scene_set(out, count, seed, hard_layout, prefix, prefix, "maniskill_pnp.scenes.hard_scenes")
 
 
 def main(argv: list[str] | None = None) -> None:

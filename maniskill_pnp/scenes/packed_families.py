@@ -39,9 +39,7 @@ import numpy as np
 import sapien
 
 from maniskill_pnp.cell.workspace import WorkspaceSpec
-from maniskill_pnp.scenes.grasp_feasibility import grasp_feasibility
-from maniskill_pnp.scenes.hard_scenes import hard_train_files
-from maniskill_pnp.scenes.layout_check import check_layout
+from maniskill_pnp.scenes.hard_scenes import first_qualifying_draw, hard_train_files, place_parts, write_scene_set
 from maniskill_pnp.scenes.objects import PALETTE, ObjectSpec
 
 TRAIN_FAMILIES = ("arch_nest", "interlock", "tall_block")
@@ -77,16 +75,25 @@ def packed_train_files() -> list[Path]:
 TRAINING_SETS = {"hard_train": hard_train_files, "packed_train": packed_train_files}
 
 
+def check_training_sets(sets) -> tuple[str, ...]:
+    """``sets`` (the clutter tasks' ``hard_sets``) as a tuple of names of :data:`TRAINING_SETS`.
+
+    Raises:
+        ValueError: an unknown name, or no name.
+    """
+    sets = tuple(sets)
+    if not sets or any(name not in TRAINING_SETS for name in sets):
+        raise ValueError(f"unknown hard_sets {list(sets)}; valid: {list(TRAINING_SETS)}")
+    return sets
+
+
 def training_arrangement_files(sets: tuple[str, ...] = ("hard_train",)) -> list[Path]:
     """The scene files of the training arrangement sets named in ``sets`` (:data:`TRAINING_SETS`), in order.
 
     Raises:
         ValueError: an unknown or empty set list.
     """
-    unknown = [name for name in sets if name not in TRAINING_SETS]
-    if unknown or not sets:
-        raise ValueError(f"unknown training arrangement sets {unknown or list(sets)!r}; valid: {list(TRAINING_SETS)}")
-    return [path for name in sets for path in TRAINING_SETS[name]()]
+    return [path for name in check_training_sets(sets) for path in TRAINING_SETS[name]()]
 
 
 def _half_footprint(spec: ObjectSpec, yaw: float) -> np.ndarray:
@@ -140,7 +147,7 @@ def _arch_nest(d: _Drawer) -> list[Part]:
     if d.chance(0.5):  # an arch over a block: the block wholly under the lintel
         length, width, leg, height = d.u(0.085, 0.1), d.u(0.045, 0.065), d.u(0.012, 0.016), d.u(0.055, 0.068)
         arch = ObjectSpec("arch", (length, width, leg, height), d.color())
-        leg_height = height - min(max(leg, 0.02), height / 2)
+        leg_height = 2 * arch.boxes()[0][1][2]  # the legs' height, under the lintel
         inner = length - 2 * leg
         inside = d.block(inner / 2 - d.gap(), min(width / 2 - 0.004, d.u(0.02, 0.03)), leg_height - d.u(0.003, 0.008))
         parts = [(arch, 0.0, 0.0, 0.0), (inside, 0.0, 0.0, 0.0)]
@@ -245,16 +252,9 @@ def _draw(rng: np.random.Generator, families: tuple[str, ...], workspace: Worksp
           ) -> tuple[str, list[tuple[ObjectSpec, sapien.Pose]]]:
     family = families[int(rng.integers(len(families)))]
     parts = _FAMILY_PARTS[family](_Drawer(rng))
-    mid = np.mean([[x, y] for _, x, y, _ in parts], axis=0)
     turn = rng.uniform(0.0, 2 * math.pi)
-    rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
     centre = np.asarray(workspace.center) + rng.uniform(-0.02, 0.02, size=2)
-    layout = []
-    for spec, x, y, yaw in parts:
-        xy = centre + rot @ (np.array([x, y]) - mid)
-        q = [math.cos((turn + yaw) / 2), 0.0, 0.0, math.sin((turn + yaw) / 2)]
-        layout.append((spec, sapien.Pose(p=[xy[0], xy[1], workspace.table_z + spec.extents[2] / 2], q=q)))
-    return family, layout
+    return family, place_parts(parts, turn, centre, workspace)
 
 
 def packed_layout(seed: int, families: tuple[str, ...] = FAMILIES, workspace: WorkspaceSpec | None = None
@@ -270,36 +270,17 @@ def packed_layout(seed: int, families: tuple[str, ...] = FAMILIES, workspace: Wo
     if unknown or not families:
         raise ValueError(f"unknown packed families {unknown or families!r}; valid: {list(FAMILIES)}")
     workspace = workspace or WorkspaceSpec()
-    rng = np.random.default_rng(seed)
-    for _ in range(MAX_DRAWS):
-        try:
-            family, layout = _draw(rng, tuple(families), workspace)
-            if not 3 <= len(layout) <= 8:
-                continue
-            check_layout(layout, workspace)
-        except ValueError:  # a part the gripper cannot take, or a layout that overlaps or does not rest
-            continue
-        locked = sum(g.locked for g in grasp_feasibility(layout, workspace))
-        if 2 * locked >= len(layout):
-            return family, layout, locked
-    raise RuntimeError(f"no packed arrangement of {list(families)} for seed {seed} in {MAX_DRAWS} draws")
+    found = first_qualifying_draw(np.random.default_rng(seed), lambda rng: _draw(rng, tuple(families), workspace),
+                                  workspace, MAX_DRAWS, objects=(3, 8))
+    if found is None:
+        raise RuntimeError(f"no packed arrangement of {list(families)} for seed {seed} in {MAX_DRAWS} draws")
+    return found
 
 
 def write_packed_scenes(out: Path, count: int, seed: int, families: tuple[str, ...], prefix: str) -> list[Path]:
     """Write ``count`` arrangements of seeds ``seed + i`` as ``out/<prefix>_<ii>.yaml`` (workspace frame)."""
-    from maniskill_pnp.scenes.scene_file import save_scene
-
-    workspace = WorkspaceSpec()
-    paths = []
-    for i in range(count):
-        family, layout, locked = packed_layout(seed + i, families, workspace)
-        name = f"{prefix}_{i:02d}"
-        path = save_scene(Path(out) / f"{name}.yaml", layout, workspace, name=name,
-                          description=f"{out.name} set, seed {seed + i}: {family}, {len(layout)} objects, {locked} "
-                                      "locked at the start (maniskill_pnp.scenes.packed_families)")
-        print(f"{path}: {family}, {len(layout)} objects, {locked} locked", flush=True)
-        paths.append(path)
-    return paths
+    return write_scene_set(out, count, seed, lambda s, ws: packed_layout(s, families, ws), prefix, Path(out).name,
+                           "maniskill_pnp.scenes.packed_families")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -105,6 +105,17 @@ def loss_causes(before: list[str], after: list[str], names: list[str], primitive
     return counts
 
 
+def check_loss_cost(loss_cost) -> float:
+    """``loss_cost`` (reward taken off per object an action loses) as a float.
+
+    Raises:
+        ValueError: not a finite number >= 0.
+    """
+    if isinstance(loss_cost, bool) or not isinstance(loss_cost, (int, float)) or not 0.0 <= loss_cost < math.inf:  # NaN fails
+        raise ValueError(f"loss_cost must be a finite number >= 0 (reward taken off per object lost), got {loss_cost!r}")
+    return float(loss_cost)
+
+
 def resolve_objects(objects) -> tuple[ObjectSpec, ...]:
     """The objects of ``objects=``: ``"ycb"`` (every YCB model that fits the gripper; the others are logged and left
     out) or a non-empty list of YCB model ids (each must fit) and ObjectSpecs.
@@ -236,8 +247,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         table, which PhysX leaves out, see :mod:`~maniskill_pnp.scenes.rolling`; 0: none, as PhysX alone; the CPU
         simulation only)."""
         guard_force = check_guard_force(guard_force)  # here: the primitives are only built at the first step
-        if isinstance(loss_cost, bool) or not isinstance(loss_cost, (int, float)) or not 0.0 <= loss_cost < math.inf:  # NaN fails
-            raise ValueError(f"loss_cost must be a finite number >= 0 (reward taken off per object lost), got {loss_cost!r}")
+        loss_cost = check_loss_cost(loss_cost)
         self.workspace = workspace or WorkspaceSpec()
         if isinstance(num_objects, str):
             num_objects = density_range(num_objects)
@@ -290,7 +300,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.include_camera_data = include_camera_data
         self.planner_seed = planner_seed
         self.guard_force = guard_force
-        self.loss_cost = float(loss_cost)
+        self.loss_cost = loss_cost
         if isinstance(rolling_lever_arm, bool) or not isinstance(rolling_lever_arm, (int, float)):
             raise ValueError(f"rolling_lever_arm must be a length in m (0: no rolling friction), got {rolling_lever_arm!r}")
         self.rolling = RollingResistance(self.workspace.table_z, float(rolling_lever_arm))

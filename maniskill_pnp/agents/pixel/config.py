@@ -21,7 +21,8 @@ from maniskill_pnp.agents.collection import check_collection
 from maniskill_pnp.agents.pixel.fcn import BACKBONE_CHOICES, EQUIVARIANT
 from maniskill_pnp.agents.pixel.policy import PrimitiveExploreMask
 from maniskill_pnp.agents.run_io import LOGGERS, RunConfig, require_positive
-from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv
+from maniskill_pnp.scenes.packed_families import check_training_sets
+from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv, check_loss_cost
 from maniskill_pnp.tasks.clutter_grasp_slide import REWARD_SCHEMES, ClutterGraspSlideEnv
 
 #: The tasks a run trains on: its env id and task class (whose ``PRIMITIVES`` are the action's primitives, one FCN
@@ -229,13 +230,8 @@ class ClutterConfig(RunConfig):
                              f"(packed_fraction {self.packed_fraction})")
         if self.mask_grasp_fit and not self.mask_empty:
             raise ValueError("mask_grasp_fit refines the material mask: it needs mask_empty")
-        from maniskill_pnp.scenes.packed_families import TRAINING_SETS
-
-        object.__setattr__(self, "hard_sets", tuple(self.hard_sets))
-        if not self.hard_sets or any(name not in TRAINING_SETS for name in self.hard_sets):
-            raise ValueError(f"unknown hard_sets {list(self.hard_sets)}; valid: {list(TRAINING_SETS)}")
-        if not (math.isfinite(self.loss_cost) and self.loss_cost >= 0):
-            raise ValueError(f"loss_cost must be a finite number >= 0 (reward taken off per object lost), got {self.loss_cost}")
+        object.__setattr__(self, "hard_sets", check_training_sets(self.hard_sets))
+        check_loss_cost(self.loss_cost)
         if self.guard_force is not None and not (math.isfinite(self.guard_force) and self.guard_force > 0):
             raise ValueError(f"guard_force must be a positive force in N (or None: unguarded), got {self.guard_force}")
         if not math.isfinite(self.slide_margin) or (self.slide_margin and self.task != "grasp_slide"):

@@ -82,30 +82,38 @@ def _resnet_trunk(last_layer: str) -> Callable[[nn.Module], nn.Module]:
     return truncate
 
 
+def _densenet121() -> nn.Module:
+    return torchvision.models.densenet121(weights=None, memory_efficient=True)
+
+
+def _resnet101() -> nn.Module:
+    return torchvision.models.resnet101(weights=None)
+
+
 BACKBONES: dict[str, _Backbone] = {
     "densenet121": _Backbone(
-        build=lambda: torchvision.models.densenet121(weights=None, memory_efficient=True),
+        build=_densenet121,
         truncate=lambda m: m.features,
         channels=1024,
         stride=32,
         offset=14.0,
     ),
     "resnet101": _Backbone(
-        build=lambda: torchvision.models.resnet101(weights=None),
+        build=_resnet101,
         truncate=_resnet_trunk("layer4"),
         channels=2048,
         stride=32,
         offset=0.0,
     ),
     "densenet121-s8": _Backbone(
-        build=lambda: torchvision.models.densenet121(weights=None, memory_efficient=True),
+        build=_densenet121,
         truncate=lambda m: m.features[:7],  # conv0 .. pool0, denseblock1, transition1, denseblock2
         channels=512,
         stride=8,
         offset=2.0,
     ),
     "resnet101-s8": _Backbone(
-        build=lambda: torchvision.models.resnet101(weights=None),
+        build=_resnet101,
         truncate=_resnet_trunk("layer2"),
         channels=512,
         stride=8,
