@@ -102,6 +102,9 @@ PRESET_VALUES = {
     "gs-cpu-equi-fit": dict(task="grasp_slide", backbone="equivariant", head_channels=32, hard_fraction=0.5,
                             guard_force=20.0, reward_scheme="unlock", explore_weights=(2.0, 1.0, 1.0), updates_per_step=2,
                             mask_grasp_fit=True),
+    "gs-cpu-equi-keep": dict(task="grasp_slide", backbone="equivariant", hard_fraction=0.5, guard_force=20.0,
+                             reward_scheme="unlock", mask_grasp_fit=True, loss_cost=1.0,
+                             hard_sets=("hard_train", "packed_train")),
 }
 
 
