@@ -69,7 +69,8 @@ ROBOT_BASE = (-0.615, 0.0, 0.0)
 logger = logging.getLogger(__name__)
 
 #: Why an action lost an object (it left the workspace other than into the bin): the ``info`` key that counts the
-#: step's objects lost that way, and its meaning. The four add up to ``info["knocked_out"]``.
+#: step's objects lost that way, and its meaning. The four add up to ``info["knocked_out"]``. An object that comes back
+#: into the workspace (pushed or bounced back) and leaves again is counted at each leaving.
 LOSS_CAUSES = {
     "lost_by_slide": "pushed out of the workspace or off the table by a slide",
     "lost_by_grasp": "an object other than the grasped one, rolled or pushed off during a grasp (the descent, the lift, "
