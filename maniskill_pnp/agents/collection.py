@@ -151,7 +151,7 @@ def make_collector(
                               cat_results="stack", auto_register_policy_transforms=False, **common)
     else:
         try:
-            import ray  # noqa: F401
+            import ray
         except ImportError as e:
             raise MissingExtraError("the ray backend needs Ray: pip install 'maniskill_pnp[ray]'") from e
         # Ray schedules the workers by CPUs only (TorchRL's default also reserves 2 GiB each; a 224 px clutter env
@@ -159,6 +159,9 @@ def make_collector(
         collector = Collector(factories, policy, backend="ray", sync=True, frames_per_batch=frames_per_worker * workers,
                               remote_configs=dict(num_cpus=1), ray_init_config=RAY_INIT,
                               collector_kwargs=dict(auto_register_policy_transforms=False), **common)
+        # Every worker has built its env before the first weight sync: TorchRL's rendezvous gives the workers 60 s from
+        # its start, which a worker's start-up on a loaded machine can exceed.
+        ray.get([worker.__ray_ready__.remote() for worker in collector.remote_collectors])
     collector.update_policy_weights_()  # the workers start from the learner's weights, not their pickled copy
     return collector
 
