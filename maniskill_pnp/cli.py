@@ -32,7 +32,8 @@ def _export_clutter(args) -> None:
     from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file, export_weights
 
     try:
-        acting = {k: v for k, v in dict(slide_margin=args.slide_margin, mask_grasp_fit=args.mask_grasp_fit).items()
+        acting = {k: v for k, v in dict(slide_margin=args.slide_margin, mask_grasp_fit=args.mask_grasp_fit,
+                                       mask_fit_scale=args.mask_fit_scale).items()
                   if v is not None}
         path = export_weights(checkpoint_file(args.checkpoint), args.out, half=args.half, **acting)
     except (FileNotFoundError, ValueError) as e:
@@ -544,6 +545,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "beats the best grasp's by more than this (default: the run's own)")
     export.add_argument("--mask-grasp-fit", action=argparse.BooleanOptionalAction, default=None,
                         help="the agent grasps only where a grasp fits the heightmap (default: as the run was trained)")
+    export.add_argument("--mask-fit-scale", type=int, default=None, help="test the grasp fit on a heightmap this many "
+                        "times finer than the network's (needs the fit test; default: as the run was trained)")
     export.set_defaults(func=_export_clutter)
 
     check = sub.add_parser("check-scene", help="which objects of scene files no top-down grasp can take (locked): "

@@ -519,7 +519,8 @@ HELP_OPTIONS = {
                                             if f.name != "checkpoint"))],
     "plot-clutter": ["runs", "--labels", "--window", "--out"],
     "record-clutter": ["checkpoint", *_flags(*(f.name for f in dataclasses.fields(ClutterVideoConfig) if f.name != "checkpoint"))],
-    "export-clutter": ["checkpoint", "--out", "--half", "--slide-margin", "--mask-grasp-fit"],
+    "export-clutter": ["checkpoint", "--out", "--half", "--slide-margin", "--mask-grasp-fit",
+                       "--mask-fit-scale"],
     "record-conveyor": ["checkpoint", *_flags(*(f.name for f in dataclasses.fields(ConveyorVideoConfig) if f.name != "checkpoint"))],
     "quickstart": _flags(*(f.name for f in dataclasses.fields(QuickstartConfig))),
 }

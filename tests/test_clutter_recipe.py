@@ -334,3 +334,16 @@ def test_trailing_mean_by_hand():
     assert np.isnan(trailing_mean(np.zeros(2), np.zeros(2), 2)).all()
     with pytest.raises(FileNotFoundError):
         load_actions("/nonexistent/run")
+
+
+def test_fit_heightmap_training_keeps_the_next_states_fit_map_for_the_bootstrap(tmp_path):
+    """``--mask-fit-scale 2``: the env observes 64 px fit heightmaps beside the 32 px ones, the actor masks with them,
+    and the replay keeps the next state's (float16) for the loss's masked bootstrap."""
+    summary = _train(tmp_path, 2, "--mask-grasp-fit", "--mask-fit-scale", "2", preset="gs-cpu-small")
+    assert summary["steps"] == 2 and summary["updates"] == 2
+    run_dir = tmp_path / "gs-cpu-small_small_r2_px32_seed0"
+    ckpt = load_checkpoint(run_dir / "checkpoint.pt")
+    assert ClutterConfig.from_json(ckpt["config"]).mask_fit_scale == 2
+    stored = TensorDict.load_memmap(run_dir / ckpt["replay"]["dir"] / "storage")["next", "fit_heightmap"]
+    assert stored.shape[1:] == (64, 64) and stored.dtype == torch.float16
+    assert stored[:2].amax(dim=(1, 2)).gt(0.01).all()  # the two next states' objects are on their fit maps

@@ -155,3 +155,44 @@ def test_projection_keeps_the_highest_point_and_the_colour_of_the_last_one_at_th
         assert height[b, 0, 0].item() == pytest.approx(0.03, abs=1e-6) and height[b, 1, 3].item() == pytest.approx(0.01, abs=1e-6)
         assert color[b, 0, 0].tolist() == [6.0, 7.0, 8.0] and color[b, 1, 3].tolist() == [9.0, 10.0, 11.0]
         assert height[b][~filled[b]].eq(0).all() and color[b][~filled[b]].eq(0).all()
+
+
+def test_workspace_fit_grid_and_bad_fit_scales():
+    ws = WorkspaceSpec(heightmap_size=64, pixel_size=0.007, fit_scale=2)
+    grid = ws.fit_grid
+    assert (grid.heightmap_size, grid.pixel_size, grid.fit_scale) == (128, 0.0035, 1)
+    assert np.array_equal(grid.bounds, ws.bounds) and grid.cameras == ws.cameras
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="fit_scale"):
+            WorkspaceSpec(fit_scale=bad)
+
+
+@pytest.fixture(scope="module")
+def fit_box_env():
+    """BOX on a 64 px heightmap (7 mm pixels) that also observes the fit heightmap (3.5 mm) and the raw cameras."""
+    q = [np.cos(BOX_YAW / 2), 0.0, 0.0, np.sin(BOX_YAW / 2)]
+    env = gym.make("ClutterGrasp-v1", layout=[(BOX, (*BOX_XY, BOX.extents[2] / 2, *q))], sim_backend="physx_cpu",
+                   render_backend="cpu", workspace=WorkspaceSpec(heightmap_size=64, pixel_size=0.007, fit_scale=2),
+                   include_camera_data=True)
+    yield env
+    env.close()
+
+
+def test_fit_heightmap_is_the_same_points_on_a_finer_grid(fit_box_env):
+    """The env observes the fit heightmap (its space says so); without hole filling, the highest point of each
+    heightmap pixel is the highest of its 2 x 2 fit pixels, exactly; the box is 60 x 30 mm and 5 cm tall on it."""
+    from maniskill_pnp.cell.heightmap import heightmaps_from_sensors
+
+    obs, _ = fit_box_env.reset(seed=0)
+    fit = obs["fit_heightmap"]
+    assert fit.shape == (1, 128, 128) and fit.dtype == torch.float32
+    assert fit_box_env.unwrapped.single_observation_space["fit_heightmap"].shape == (128, 128)
+    assert fit_box_env.unwrapped.observation_space["fit_heightmap"].shape == (1, 128, 128)
+    ws = fit_box_env.unwrapped.workspace
+    color, height, fine = heightmaps_from_sensors(obs["sensor_data"], obs["sensor_param"], ws, fill_passes=0, fit=True)
+    assert torch.equal(torch.nn.functional.max_pool2d(fine[:, None], 2)[:, 0], height)
+    h = fit[0].numpy()
+    top = h > 0.01
+    rows, cols = np.nonzero(top)
+    assert np.median(h[top]) == pytest.approx(0.05, abs=0.003)
+    assert abs((cols.max() - cols.min() + 1) - 60 / 3.5) <= 2 and abs((rows.max() - rows.min() + 1) - 30 / 3.5) <= 2

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import pytest
 import torch
 from tensordict import TensorDict
+import torch.nn.functional as F
 from torch import nn
 from torchrl.data import Categorical
 from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -254,3 +256,62 @@ def test_slide_margin_keeps_a_grasp_unless_a_slide_beats_it_by_more():
 def test_bad_primitive_margins_raise(margins):
     with pytest.raises(ValueError, match="primitive margins"):
         GreedyPixelActor(nn.Identity(), primitive_margins=margins)
+
+
+def _turned_bar(scale: int, yaw_deg: float, size: int = 32, px: float = 0.007) -> torch.Tensor:
+    """Heights ``(1, scale·size, scale·size)``: a 6 x 2 cm bar, 3 cm tall, centred on heightmap pixel (16, 16), its
+    long side turned ``yaw_deg`` from the y axis; a fine pixel is material where its centre lies on the bar."""
+    q = px / scale
+    centres = (torch.arange(scale * size, dtype=torch.float64) + 0.5) * q
+    ys, xs = torch.meshgrid(centres, centres, indexing="ij")
+    a = math.radians(yaw_deg)
+    dx, dy = xs - 16.5 * px, ys - 16.5 * px
+    across, along = dx * math.cos(a) + dy * math.sin(a), -dx * math.sin(a) + dy * math.cos(a)
+    return ((across.abs() <= 0.01) & (along.abs() <= 0.03)).float()[None] * 0.03
+
+
+def test_fit_heightmap_rejects_a_bar_turned_out_of_the_friction_cone_that_7_mm_pixels_pass():
+    """Jaws closing along x on a bar turned 30 degrees: its faces lie outside the pads' friction cone (17 degrees), but
+    on 7 mm pixels the slope across the 1.75 cm pads is within a pixel's slack. The 3.5 mm fit heightmap sees it; both
+    pass the bar square to the jaws. The camera's 7 mm map is the fine one max-pooled."""
+    from maniskill_pnp.cell.workspace import WorkspaceSpec
+
+    mask = HeightmapActionMask.for_workspace(("grasp",), WorkspaceSpec(heightmap_size=32, pixel_size=0.007, num_rotations=4),
+                                             grasp_fit=True)
+    for yaw, square in ((0.0, True), (30.0, False)):
+        fine = _turned_bar(4, yaw)
+        height = F.max_pool2d(fine[:, None], 4)[:, 0]
+        at = torch.zeros_like(height, dtype=torch.bool)
+        at[0, 16, 16] = True
+        coarse = mask.grasp_fits(height, at)[0, 0, 16, 16]
+        fit = mask.grasp_fits(height, at, F.max_pool2d(fine[:, None], 2)[:, 0])[0, 0, 16, 16]
+        assert bool(coarse) and bool(fit) == square
+    with pytest.raises(ValueError, match="fit heightmap"):
+        mask.grasp_fits(height, at, torch.zeros(1, 48, 40))
+
+
+def test_actor_and_bootstrap_read_the_fit_heightmap():
+    """A G&S actor over the 30-degree bar: on the 7 mm map its best action is the grasp at the bar's centre; with the
+    fit heightmap that grasp is masked out, for the actor and for the loss's bootstrap (from ("next", fit_heightmap))."""
+    from maniskill_pnp.cell.workspace import WorkspaceSpec
+
+    prims = ("grasp", "left_slide", "right_slide")
+    layout = PixelActionLayout(3, 4, 32, 32)
+    mask = HeightmapActionMask.for_workspace(prims, WorkspaceSpec(heightmap_size=32, pixel_size=0.007, num_rotations=4),
+                                             grasp_fit=True)
+    fine = F.max_pool2d(_turned_bar(4, 30.0)[:, None], 2)[:, 0]
+    height = F.max_pool2d(fine[:, None], 2)[:, 0]
+    maps = torch.zeros(1, *layout.shape)
+    maps[0, 0, 0, 16, 16] = 2.0
+    best = layout.encode(0, 0, 16, 16)
+    actor = GreedyPixelActor(FixedMaps(maps), mask)
+    color = torch.zeros(1, 32, 32, 3, dtype=torch.uint8)
+    assert int(actor(color, height)[1]) == best and int(actor(color, height, fine)[1]) != best
+    obs = torch.cat([torch.zeros(1, 3, 32, 32), height[:, None]], dim=1)
+    loss = PixelDQNLoss(FixedMaps(maps), gamma=1.0, delay_value=False, action_mask=mask.from_observation)
+    assert float(loss.bootstrap(obs)) == 2.0 and float(loss.bootstrap(obs, fine)) < 2.0
+    batch = TensorDict({"observation": obs, "action": torch.tensor([best]),
+                        "next": {"observation": obs, "reward": torch.zeros(1), "terminated": torch.zeros(1, dtype=torch.bool),
+                                 "done": torch.zeros(1, dtype=torch.bool), "fit_heightmap": fine.half()}}, batch_size=[1])
+    loss(batch)
+    torch.testing.assert_close(batch["td_error"], (2.0 - loss.bootstrap(obs, fine)).abs())

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from maniskill_pnp.agents.pixel.checkpoint import export_weights, load_checkpoint
-from maniskill_pnp.agents.pixel.factories import load_policy
+from maniskill_pnp.agents.pixel.factories import load_policy, make_workspace
 from maniskill_pnp.cli import main as cli
 from maniskill_pnp.quickstart import BUNDLED_AGENTS, QuickstartConfig, report, run
 
@@ -66,9 +66,14 @@ def test_export_keeps_only_config_and_weights(tiny_clutter_run, tmp_path):
 
 
 def test_export_sets_how_the_agent_acts_and_nothing_else(tiny_clutter_run, tmp_path):
-    cli(["export-clutter", str(tiny_clutter_run), "--out", str(tmp_path / "fit.pt"), "--mask-grasp-fit"])
+    cli(["export-clutter", str(tiny_clutter_run), "--out", str(tmp_path / "fit.pt"), "--mask-grasp-fit", "--mask-fit-scale", "2"])
     _, cfg, _ = load_policy(tmp_path / "fit.pt", torch.device("cpu"))
     assert cfg.mask_grasp_fit and not load_checkpoint(tiny_clutter_run / "checkpoint.pt")["config"].get("mask_grasp_fit")
+    assert cfg.mask_fit_scale == 2 and make_workspace(cfg).fit_scale == 2  # its env observes the fit heightmap
+    _, plain, _ = load_policy(tmp_path / "fit.pt", torch.device("cpu"), mask_grasp_fit=False)
+    assert (plain.mask_grasp_fit, plain.mask_fit_scale) == (False, 1)  # no fit test, so no fit heightmap
+    with pytest.raises(ValueError, match="mask_fit_scale"):  # a finer fit test needs the fit test
+        export_weights(tiny_clutter_run / "checkpoint.pt", tmp_path / "x.pt", mask_fit_scale=2)
     with pytest.raises(ValueError, match="slide_margin"):  # a grasp-only agent has no slides
         export_weights(tiny_clutter_run / "checkpoint.pt", tmp_path / "x.pt", slide_margin=0.5)
     with pytest.raises(ValueError, match="only"):

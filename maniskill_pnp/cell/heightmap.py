@@ -138,7 +138,8 @@ def heightmaps_from_sensors(
     spec: WorkspaceSpec,
     cameras: tuple[str, ...] | None = None,
     fill_passes: int = 3,
-) -> tuple[torch.Tensor, torch.Tensor]:
+    fit: bool = False,
+) -> tuple[torch.Tensor, ...]:
     """Colour and height heightmaps fused from ManiSkill cameras.
 
     Args:
@@ -147,16 +148,22 @@ def heightmaps_from_sensors(
         spec: The workspace grid.
         cameras: Cameras to fuse (default: every camera of ``spec``).
         fill_passes: Hole-filling passes (0: none).
+        fit: Also the fit heightmap: the same points' heights on ``spec.fit_grid`` (its holes filled as well).
 
     Returns:
-        color (B, S, S, 3) uint8 and height (B, S, S) float32 metres above the table (0 where nothing was seen).
+        color (B, S, S, 3) uint8 and height (B, S, S) float32 metres above the table (0 where nothing was seen); with
+        ``fit`` a third, the fit heightmap (B, k·S, k·S) float32 (k = ``spec.fit_scale``).
     """
     names = cameras or tuple(c.name for c in spec.cameras)
     with _single_thread_on_cpu(sensor_data[names[0]]["depth"].device):
-        return _heightmaps(sensor_data, sensor_param, spec, names, fill_passes)
+        points = _world_points(sensor_data, sensor_param, names)
+        color, height = _project(*points, spec, fill_passes)
+        if not fit:
+            return color, height
+        return color, height, _project(*points, spec.fit_grid, fill_passes)[1]
 
 
-def _heightmaps(sensor_data, sensor_param, spec, names, fill_passes):
+def _world_points(sensor_data, sensor_param, names):
     pts, cols, val = [], [], []
     for name in names:
         data, param = sensor_data[name], sensor_param[name]
@@ -164,7 +171,11 @@ def _heightmaps(sensor_data, sensor_param, spec, names, fill_passes):
         pts.append(p)
         val.append(v)
         cols.append(data["rgb"].reshape(p.shape[0], -1, 3).to(p.device))
-    height, color, filled = project_heightmap(torch.cat(pts, 1), torch.cat(cols, 1), torch.cat(val, 1), spec)
+    return torch.cat(pts, 1), torch.cat(cols, 1), torch.cat(val, 1)
+
+
+def _project(points, colors, valid, spec, fill_passes):
+    height, color, filled = project_heightmap(points, colors, valid, spec)
     if fill_passes:
         height, color, filled = fill_holes(height, color, filled, fill_passes)
     return color.round().clamp(0, 255).to(torch.uint8), height.to(torch.float32)

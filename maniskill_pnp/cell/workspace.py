@@ -17,7 +17,7 @@ towards growing rows. Rotation 0: jaws along +x, left = +y, right = -y.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -87,6 +87,9 @@ class WorkspaceSpec:
         cameras: The RGB-D cameras fused into the heightmap; None: :func:`default_cameras` of ``center`` (a
             top-down narrow-FOV one and a perspective one).
         bin: The place bin, beside the workspace.
+        fit_scale: Fine pixels per heightmap pixel side of the *fit heightmap*, the same cameras' heights on a finer
+            grid (:attr:`fit_grid`) that the grasp-fit test of the pixel agents reads (their networks keep the
+            heightmap); 1: none.
     """
 
     center: tuple[float, float] = (-0.06, -0.1)
@@ -103,8 +106,12 @@ class WorkspaceSpec:
     slide_clearance: float = 0.01
     cameras: tuple[CameraSpec, ...] | None = None
     bin: BinSpec = field(default_factory=BinSpec)
+    fit_scale: int = 1
 
     def __post_init__(self):
+        k = self.fit_scale
+        if not isinstance(k, (int, np.integer)) or isinstance(k, bool) or k < 1:
+            raise ValueError(f"fit_scale must be a positive integer (1: no fit heightmap), got {k!r}")
         if not isinstance(self.heightmap_size, (int, np.integer)) or self.heightmap_size <= 0:
             raise ValueError(f"heightmap_size must be a positive integer, got {self.heightmap_size!r}")
         if not self.pixel_size > 0:
@@ -134,6 +141,12 @@ class WorkspaceSpec:
     def side(self) -> float:
         """Side of the heightmap square (m)."""
         return self.heightmap_size * self.pixel_size
+
+    @property
+    def fit_grid(self) -> WorkspaceSpec:
+        """The workspace on the fit heightmap's grid: ``fit_scale`` times the pixels per side over the same square."""
+        k = int(self.fit_scale)
+        return replace(self, heightmap_size=self.heightmap_size * k, pixel_size=self.pixel_size / k, fit_scale=1)
 
     @property
     def bounds(self) -> np.ndarray:

@@ -164,7 +164,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     heightmap; the arm grasps top-down at that pixel's 3-D point with the rotation's yaw, puts a grasped object
     into the bin and goes back out of the cameras' view. Observation: ``color_heightmap`` (uint8 H×W×3) and
     ``depth_heightmap`` (float32 H×W, metres above the table), fused from a top-down narrow-FOV camera and a
-    perspective camera (plus raw camera data with ``include_camera_data=True``).
+    perspective camera (plus raw camera data with ``include_camera_data=True``, and ``fit_heightmap``, the heights on
+    a k-times finer grid, with the workspace's ``fit_scale`` k > 1).
     Reward: 1 placed in the bin, 0.5 grasped but not placed, 0 otherwise; with ``loss_cost=c``, c less per object the
     action lost off the workspace (``info["knocked_out"]``, whatever moved it).
 
@@ -336,19 +337,21 @@ class ClutterGraspEnv(PrimitiveStepEnv):
     # ------------------------------------------------------------------ spaces
     @property
     def single_observation_space(self):
-        s = self.workspace.heightmap_size
-        return spaces.Dict(
-            color_heightmap=spaces.Box(0, 255, (s, s, 3), np.uint8),
-            depth_heightmap=spaces.Box(0.0, self.workspace.max_height, (s, s), np.float32),
-        )
+        return self._observation_space(())
 
     @property
     def observation_space(self):
-        s, n = self.workspace.heightmap_size, self.num_envs
-        return spaces.Dict(
-            color_heightmap=spaces.Box(0, 255, (n, s, s, 3), np.uint8),
-            depth_heightmap=spaces.Box(0.0, self.workspace.max_height, (n, s, s), np.float32),
-        )
+        return self._observation_space((self.num_envs,))
+
+    def _observation_space(self, batch: tuple[int, ...]) -> spaces.Dict:
+        ws = self.workspace
+        s, top = ws.heightmap_size, ws.max_height
+        boxes = dict(color_heightmap=spaces.Box(0, 255, (*batch, s, s, 3), np.uint8),
+                     depth_heightmap=spaces.Box(0.0, top, (*batch, s, s), np.float32))
+        if ws.fit_scale > 1:
+            f = ws.fit_grid.heightmap_size
+            boxes["fit_heightmap"] = spaces.Box(0.0, top, (*batch, f, f), np.float32)
+        return spaces.Dict(boxes)
 
     # ------------------------------------------------------------------ scene
     @property
@@ -652,10 +655,12 @@ class ClutterGraspEnv(PrimitiveStepEnv):
             }
         params = self.get_sensor_params()
         t1 = time.perf_counter()
-        color, height = heightmaps_from_sensors(data, params, self.workspace)
+        color, height, *fit = heightmaps_from_sensors(data, params, self.workspace, fit=self.workspace.fit_scale > 1)
         self._t_render, self._t_heightmap = t1 - t0, time.perf_counter() - t1
         self._height = height.cpu().numpy()  # (num_envs, H, W)
         obs = dict(color_heightmap=color, depth_heightmap=height)
+        if fit:
+            obs["fit_heightmap"] = fit[0]
         if self.include_camera_data:
             obs["sensor_data"] = data
             obs["sensor_param"] = params

@@ -139,6 +139,10 @@ class ClutterConfig(RunConfig):
     mask_grasp_fit: bool = False
     """Also mask out grasps whose open fingers, lowered to the grasp's depth, would strike the heightmap (a neighbour
     pressed against the object, or the object itself when wider than the jaws); needs ``mask_empty``."""
+    mask_fit_scale: int = 1
+    """With ``mask_grasp_fit``, test the fit on a heightmap this many times finer than the network's (the env also
+    observes it as ``fit_heightmap``, and the replay keeps the next state's for the bootstrap's mask): 2 halves the
+    pixels the open fingers and pads are placed on. 1: the network's heightmap."""
     learning_starts: int = 1
     """Transitions in the replay before the first SGD step."""
     replay_capacity: int = 2000
@@ -230,6 +234,9 @@ class ClutterConfig(RunConfig):
                              f"(packed_fraction {self.packed_fraction})")
         if self.mask_grasp_fit and not self.mask_empty:
             raise ValueError("mask_grasp_fit refines the material mask: it needs mask_empty")
+        k = self.mask_fit_scale
+        if not isinstance(k, int) or isinstance(k, bool) or k < 1 or (k > 1 and not self.mask_grasp_fit):
+            raise ValueError(f"mask_fit_scale must be a positive int, and 1 unless mask_grasp_fit is on; got {k!r}")
         object.__setattr__(self, "hard_sets", check_training_sets(self.hard_sets))
         check_loss_cost(self.loss_cost)
         if self.guard_force is not None and not (math.isfinite(self.guard_force) and self.guard_force > 0):

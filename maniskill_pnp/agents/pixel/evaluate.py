@@ -73,7 +73,7 @@ from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file
 from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_policy, make_env, scenario_layout_files
 from maniskill_pnp.agents.pixel.fcn import rotation_angles
 from maniskill_pnp.agents.pixel.metrics import is_grasp_attempt
-from maniskill_pnp.agents.pixel.policy import GreedyPixelActor
+from maniskill_pnp.agents.pixel.policy import FIT_KEY, GreedyPixelActor
 from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
 from maniskill_pnp.runtime import resolve_device
 from maniskill_pnp.cell.pixel_action import PixelActionLayout
@@ -135,6 +135,9 @@ class ClutterEvalConfig:
     mask_grasp_fit: bool | None = None
     """Mask out grasps whose open fingers would strike the heightmap (see ``HeightmapActionMask.grasp_fit``); None:
     as the run was trained (its ``mask_grasp_fit``)."""
+    mask_fit_scale: int | None = None
+    """Test the grasp fit on a heightmap this many times finer than the network's (see ``ClutterConfig.mask_fit_scale``;
+    needs the fit test); None: as the run was trained."""
     avoid_repeats: bool = False
     """Never repeat an action that failed (a failed grasp, a slide that changed nothing) until the next success:
     a failure that leaves the scene as it was leaves the greedy argmax where it was, so without this memory the
@@ -298,7 +301,8 @@ def decide(actor: GreedyPixelActor, obs: dict, device: torch.device, exclude: Co
     """Greedy flat action index and the Q maps ``(P, R, H, W)`` (on the CPU) of one env observation; the flat
     action indices in ``exclude`` are never chosen (unless they are all the allowed actions)."""
     color, depth = obs["color_heightmap"].to(device), obs["depth_heightmap"].to(device)
-    values, action, *mask = actor(color, depth)
+    fit = obs.get(FIT_KEY)
+    values, action, *mask = actor(color, depth, None if fit is None else fit.to(device))
     if exclude:
         allowed = mask[0].reshape(-1).clone() if mask else torch.ones(values.numel(), dtype=torch.bool, device=values.device)
         allowed[torch.as_tensor(list(exclude), device=values.device)] = False
@@ -485,7 +489,7 @@ def run(cfg: ClutterEvalConfig) -> dict:
     # 1. load the policy (a bad file fails before any env is made)
     ckpt = cfg.checkpoint_path
     actor, train_cfg, counters = load_policy(ckpt, device, grasp_only=cfg.grasp_only, slide_margin=cfg.slide_margin,
-                                               mask_grasp_fit=cfg.mask_grasp_fit)
+                                               mask_grasp_fit=cfg.mask_grasp_fit, mask_fit_scale=cfg.mask_fit_scale)
     primitives = actor.q_network.primitives
     env_cfg = train_cfg if cfg.num_objects is None else dataclasses.replace(train_cfg, num_objects=cfg.num_objects)
 

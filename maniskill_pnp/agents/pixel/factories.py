@@ -67,9 +67,11 @@ def scenario_layout_files(name: str) -> list[Path] | None:
 
 
 def make_workspace(cfg: ClutterConfig) -> WorkspaceSpec:
-    """The workspace of the config: its heightmap size, pixel size and rotations (the rest at the task defaults)."""
+    """The workspace of the config: its heightmap size, pixel size, rotations and fit heightmap scale (the rest at the
+    task defaults)."""
     return WorkspaceSpec(
-        heightmap_size=cfg.heightmap_size, pixel_size=cfg.workspace_side / cfg.heightmap_size, num_rotations=cfg.num_rotations
+        heightmap_size=cfg.heightmap_size, pixel_size=cfg.workspace_side / cfg.heightmap_size, num_rotations=cfg.num_rotations,
+        fit_scale=cfg.mask_fit_scale,
     )
 
 
@@ -127,15 +129,17 @@ def make_policy(cfg: ClutterConfig, model: MultiPrimitiveQNetwork, action_spec, 
     schedule = (dict(eps_init=cfg.eps_start, eps_end=cfg.eps_end, annealing_num_steps=cfg.eps_decay_steps) if eps is None
                 else dict(eps_init=eps, eps_end=eps, annealing_num_steps=1))
     return make_pixel_policy(model, action_spec, action_mask=make_action_mask(cfg), explore_weights=cfg.explore_weights or None,
-                             primitive_margins=cfg.primitive_margins(), **schedule)
+                             primitive_margins=cfg.primitive_margins(), fit_heightmap=cfg.mask_fit_scale > 1, **schedule)
 
 
 def load_policy(path: Path, device: torch.device, grasp_only: bool = False, slide_margin: float | None = None,
-                mask_grasp_fit: bool | None = None) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
+                mask_grasp_fit: bool | None = None, mask_fit_scale: int | None = None,
+                ) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
     """The greedy actor of a checkpoint (network in eval mode on ``device``, the training's action mask, and with
     ``grasp_only`` only the grasp primitive enabled; ``slide_margin`` replaces the run's own, see
-    :attr:`ClutterConfig.slide_margin`, and ``mask_grasp_fit`` the run's :attr:`ClutterConfig.mask_grasp_fit`), its
-    training config and counters.
+    :attr:`ClutterConfig.slide_margin`, ``mask_grasp_fit`` the run's :attr:`ClutterConfig.mask_grasp_fit` and
+    ``mask_fit_scale`` its :attr:`ClutterConfig.mask_fit_scale`), its config (the training's, with those mask fields
+    as the actor uses them: make its env from it) and counters.
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
@@ -155,8 +159,11 @@ def load_policy(path: Path, device: torch.device, grasp_only: bool = False, slid
     except RuntimeError as e:
         raise ValueError(f"checkpoint {path}: the weights do not fit the network of its config: {e}") from e
     model.to(device).eval()
-    mask_cfg = train_cfg if mask_grasp_fit is None else dataclasses.replace(train_cfg, mask_grasp_fit=bool(mask_grasp_fit))
-    mask = make_action_mask(mask_cfg, enabled=("grasp",) if grasp_only else None)
+    acting = {k: v for k, v in dict(mask_grasp_fit=mask_grasp_fit, mask_fit_scale=mask_fit_scale).items() if v is not None}
+    if acting.get("mask_grasp_fit") is False:
+        acting.setdefault("mask_fit_scale", 1)
+    train_cfg = dataclasses.replace(train_cfg, **acting)  # raises ValueError on a scale without the fit test
+    mask = make_action_mask(train_cfg, enabled=("grasp",) if grasp_only else None)
     if slide_margin is not None and train_cfg.task != "grasp_slide":
         raise ValueError(f"checkpoint {path} is a grasp-only agent ({train_cfg.env_id}): a slide margin needs a G&S agent")
     margins = train_cfg.primitive_margins(slide_margin)

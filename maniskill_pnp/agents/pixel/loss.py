@@ -36,6 +36,7 @@ from tensordict import TensorDict, TensorDictBase, TensorDictParams
 from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.objectives import LossModule
+from maniskill_pnp.agents.pixel.policy import FIT_KEY
 
 _REDUCTIONS = ("mean", "sum", "none")
 
@@ -140,7 +141,8 @@ class PixelDQNLoss(_PixelLoss):
         reduction: ``"mean"``, ``"sum"`` or ``"none"`` over the batch.
         use_prioritized_weights: Multiply by ``"priority_weight"`` when the tensordict holds it.
         action_mask: Optional ``observation (N, 4, H, W) -> bool (N, *flat action)`` restricting the bootstrap's
-            max (e.g. ``HeightmapActionMask(...).from_observation``), the same mask the actor acts under.
+            max (e.g. ``HeightmapActionMask(...).from_observation``), the same mask the actor acts under; where the
+            transitions hold ``("next", "fit_heightmap")`` it is called as ``action_mask(observation, fit)``.
         executed_only: Compute the online ``Q(s, a)`` from the executed primitive and rotation only, when the
             network offers ``executed_values`` (the gradient is the same; BatchNorm's train-mode statistics come
             from the executed images). False: the full maps, as the module docstring describes.
@@ -182,12 +184,16 @@ class PixelDQNLoss(_PixelLoss):
         self.action_mask = action_mask
 
     @torch.no_grad()
-    def bootstrap(self, next_observation: torch.Tensor) -> torch.Tensor:
-        """``max_a' Q(s', a')`` per sample ``(N,)`` (double DQN: target value of the online argmax)."""
+    def bootstrap(self, next_observation: torch.Tensor, next_fit: torch.Tensor | None = None) -> torch.Tensor:
+        """``max_a' Q(s', a')`` per sample ``(N,)`` (double DQN: target value of the online argmax); ``next_fit``: the
+        next states' fit heightmaps ``(N, k·H, k·W)`` for the action mask."""
         n = next_observation.shape[0]
         target_params = self.target_value_network_params if self.delay_value else self.value_network_params.data
         next_q = self._maps(next_observation, target_params).reshape(n, -1)
-        allowed = None if self.action_mask is None else self.action_mask(next_observation).reshape(n, -1)
+        allowed = None
+        if self.action_mask is not None:
+            fit = () if next_fit is None else (next_fit.to(torch.float32),)
+            allowed = self.action_mask(next_observation, *fit).reshape(n, -1)
         if not self.double_dqn:
             return (next_q if allowed is None else next_q.masked_fill(~allowed, float("-inf"))).max(dim=1).values
         online = self._maps(next_observation, self.value_network_params.data).reshape(n, -1)
@@ -210,7 +216,10 @@ class PixelDQNLoss(_PixelLoss):
         terminated = terminated.reshape(n).bool()
         next_obs = tensordict.get(("next", keys.observation))
         next_obs = next_obs.reshape(n, *next_obs.shape[tensordict.batch_dims :])
-        next_value = self.bootstrap(next_obs).to(q.dtype)
+        next_fit = tensordict.get(("next", FIT_KEY), default=None)
+        if next_fit is not None:
+            next_fit = next_fit.reshape(n, *next_fit.shape[tensordict.batch_dims:])
+        next_value = self.bootstrap(next_obs, next_fit).to(q.dtype)
         target = reward + self.gamma * next_value.masked_fill(terminated, 0.0)
 
         self._write_priority(tensordict, (target - q).abs())

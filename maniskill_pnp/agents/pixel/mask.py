@@ -35,6 +35,7 @@ Example:
 from __future__ import annotations
 
 from dataclasses import dataclass
+import functools
 from functools import cached_property
 
 import numpy as np
@@ -124,50 +125,13 @@ class HeightmapActionMask:
             **kwargs,
         )
 
-    @cached_property
-    def _gripper(self) -> tuple[int, list[tuple[torch.Tensor, torch.Tensor]], torch.Tensor, object]:
-        """The open gripper as indices into a pixel's flattened ``(2 * reach + 1)²`` neighbourhood, built once per
-        mask: ``(reach, descent, closing, model)``.
+    def _gripper(self, scale: int = 1) -> tuple[int, list[tuple[torch.Tensor, torch.Tensor]], torch.Tensor, object]:
+        """The open gripper as indices into a grasp pixel's flattened ``(2 * reach + 1)²`` neighbourhood on a map
+        ``scale`` times finer than the heightmap: ``(reach, descent, closing, model)``, built once per mask and scale
+        (:func:`_gripper_cells`)."""
+        return _gripper_cells(self.pixel_size, self.num_rotations, scale)
 
-        ``descent[r]`` is ``(index, lowest)``: the neighbourhood cells under the gripper at rotation ``r`` and its
-        lowest height above the fingertip TCP over each (m). ``closing[r]`` ``(2, 3, S)``: for each pad (+y, -y), three
-        lines across its width (its two edges and middle) from its inner face towards the other pad, ``S`` cells half a
-        pixel apart. ``reach`` is the largest offset (pixels), ``model`` the
-        :class:`~maniskill_pnp.scenes.grasp_feasibility.GripperModel`. Rotation ``r`` closes the jaws along
-        ``r * 360° / num_rotations`` from the column axis."""
-        from maniskill_pnp.scenes.grasp_feasibility import panda_gripper
-
-        model = panda_gripper()
-        points = model.points  # x along the pads' width, y the closing direction, lowest height above the TCP
-        step = self.pixel_size / 2
-        travel = np.arange(0.0, 2 * model.pad_inner + step / 2, step)
-        lines = np.array([[[(x, sign * (model.pad_inner - t)) for t in travel]
-                           for x in (-model.pad_half_width, 0.0, model.pad_half_width)] for sign in (1.0, -1.0)])
-
-        def cells(xy: np.ndarray, yaw: float) -> np.ndarray:  # grasp-frame (x, y) -> pixel offsets (row, col)
-            dx = xy[..., 1] * np.cos(yaw) - xy[..., 0] * np.sin(yaw)
-            dy = xy[..., 1] * np.sin(yaw) + xy[..., 0] * np.cos(yaw)
-            return np.round(np.stack([dy, dx], axis=-1) / self.pixel_size).astype(np.int64)
-
-        under, closing = [], []
-        for rot in range(self.num_rotations):
-            yaw = rot * 2 * np.pi / self.num_rotations
-            keys, inverse = np.unique(cells(points[:, :2], yaw), axis=0, return_inverse=True)
-            lowest = np.full(len(keys), np.inf)
-            np.minimum.at(lowest, inverse.reshape(-1), points[:, 2])
-            under.append((keys, lowest))
-            closing.append(cells(lines, yaw))
-        closing = np.stack(closing)
-        reach = int(max(max(np.abs(keys).max() for keys, _ in under), np.abs(closing).max()))
-        k = 2 * reach + 1
-
-        def flat(offsets: np.ndarray) -> torch.Tensor:
-            return torch.from_numpy((offsets[..., 0] + reach) * k + offsets[..., 1] + reach)
-
-        descent = [(flat(keys), torch.from_numpy(lowest).float()) for keys, lowest in under]
-        return reach, descent, flat(closing), model
-
-    def grasp_fits(self, height: torch.Tensor, where: torch.Tensor) -> torch.Tensor:
+    def grasp_fits(self, height: torch.Tensor, where: torch.Tensor, fit: torch.Tensor | None = None) -> torch.Tensor:
         """``bool (N, R, H, W)``: at the pixels of ``where`` ``(N, H, W)``, whether a grasp at each rotation fits the
         heightmap ``height`` ``(N, H, W)`` (m above the table; extended by bare table beyond its edges); False
         elsewhere. It fits when
@@ -178,25 +142,37 @@ class HeightmapActionMask:
            material that reaches into the pads' height band, and where it is met differs across the pad's width by
            at most the friction slope of :mod:`~maniskill_pnp.scenes.grasp_feasibility` plus a pixel (a corner
            pinched obliquely is no grasp).
+
+        With a fit heightmap ``fit`` ``(N, k·H, k·W)`` (the same square on a ``k`` times finer grid) the two tests
+        read it instead, around each grasp pixel's centre; the fingertip height still follows ``height`` at the pixel,
+        as the task's grasp does.
         """
         from maniskill_pnp.scenes.grasp_feasibility import FRICTION, MIN_GRIP
 
         n, h, w = height.shape
-        reach, descent, closing, model = self._gripper
+        scale, fine = 1, height
+        if fit is not None:
+            scale = fit.shape[-1] // w
+            if fit.shape != (n, scale * h, scale * w) or scale < 1:
+                raise ValueError(f"the fit heightmap must be (N, k*H, k*W) for a whole k >= 1 with the heightmap "
+                                 f"{tuple(height.shape)}, got {tuple(fit.shape)}")
+            fine = fit.to(height.dtype)
+        reach, descent, closing, model = self._gripper(scale)
         k, dev = 2 * reach + 1, height.device
-        windows = F.pad(height, (reach, reach, reach, reach)).unfold(1, k, 1).unfold(2, k, 1)  # (N, H, W, K, K) view
+        windows = F.pad(fine, (reach, reach, reach, reach)).unfold(1, k, 1).unfold(2, k, 1)  # (N, kH, kW, K, K) view
         at = where.nonzero(as_tuple=True)
-        around = windows[at].reshape(-1, k * k)  # (M, K*K): the neighbourhoods of the pixels asked about
+        around = windows[at[0], at[1] * scale + scale // 2, at[2] * scale + scale // 2].reshape(-1, k * k)
         tcp = torch.clamp(height[at] - self.grasp_depth, min=self.min_tip_height)
         band = (tcp + model.pad_band[0] + MIN_GRIP)[:, None, None, None]
-        spread = FRICTION * 2 * model.pad_half_width + self.pixel_size
+        step = self.pixel_size / scale
+        spread = FRICTION * 2 * model.pad_half_width + step
         closing = closing.to(dev)
         fits = torch.zeros(n, self.num_rotations, h, w, dtype=torch.bool, device=dev)
         for rot, (index, lowest) in enumerate(descent):
             clear = (around[:, index.to(dev)] - lowest.to(dev)).amax(dim=-1) <= tcp + self.fit_tolerance
             material = around[:, closing[rot]] > band  # (M, 2 pads, 3 lines, S)
             met = material.any(dim=-1)
-            first = material.to(torch.uint8).argmax(dim=-1).float() * (self.pixel_size / 2)  # travel to first contact
+            first = material.to(torch.uint8).argmax(dim=-1).float() * (step / 2)  # travel to first contact
             flat = (first.amax(dim=-1) - first.amin(dim=-1) <= spread).all(dim=-1)
             fits[at[0], rot, at[1], at[2]] = clear & met.all(dim=-1).all(dim=-1) & flat
         return fits
@@ -219,12 +195,15 @@ class HeightmapActionMask:
             kernels[side] = lines
         return kernels
 
-    def pixel_masks(self, height: torch.Tensor) -> torch.Tensor:
-        """Per-primitive, per-rotation pixel masks ``(*B, P, R, H, W)`` of heights ``(*B, H, W)`` (m above the table)."""
+    def pixel_masks(self, height: torch.Tensor, fit: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-primitive, per-rotation pixel masks ``(*B, P, R, H, W)`` of heights ``(*B, H, W)`` (m above the table);
+        ``fit`` ``(*B, k·H, k·W)``: the fit heightmap the grasp-fit test reads (see :meth:`grasp_fits`)."""
         if height.ndim < 2:
             raise ValueError(f"height must be (*B, H, W), got shape {tuple(height.shape)}")
         batch, (h, w), rots = height.shape[:-2], height.shape[-2:], self.num_rotations
         flat = height.reshape(-1, 1, h, w)
+        if fit is not None:
+            fit = fit.reshape(-1, *fit.shape[-2:])
         n = flat.shape[0]
         if self.min_height is None:
             occupied = torch.ones_like(flat, dtype=torch.bool)
@@ -237,7 +216,7 @@ class HeightmapActionMask:
             if self.enabled is not None and name not in self.enabled:
                 masks.append(torch.zeros(n, rots, h, w, dtype=torch.bool, device=flat.device))
             elif name == GRASP and self.grasp_fit:
-                masks.append(self.grasp_fits(flat[:, 0], occupied[:, 0]))
+                masks.append(self.grasp_fits(flat[:, 0], occupied[:, 0], fit))
             elif name == GRASP or self.min_height is None:
                 masks.append(occupied.expand(n, rots, h, w))
             else:
@@ -251,13 +230,14 @@ class HeightmapActionMask:
             masks[g] = torch.where(stuck, occupied.expand(n, rots, h, w), masks[g])
         return torch.stack(masks, dim=1).reshape(*batch, len(self.primitives), rots, h, w)
 
-    def __call__(self, height: torch.Tensor) -> torch.Tensor:
-        """Flat action mask ``(*B, P*R*H*W)`` (PixelActionLayout order).
+    def __call__(self, height: torch.Tensor, fit: torch.Tensor | None = None) -> torch.Tensor:
+        """Flat action mask ``(*B, P*R*H*W)`` (PixelActionLayout order) of heights ``(*B, H, W)``, with the fit
+        heightmap ``fit`` (see :meth:`grasp_fits`) where there is one.
 
         Where the material test leaves no action (nothing on the table), every action of the enabled primitives
         is allowed, so the mask is never empty.
         """
-        flat = self.pixel_masks(height).flatten(-4)
+        flat = self.pixel_masks(height, fit).flatten(-4)
         empty = ~flat.any(dim=-1, keepdim=True)
         if self.enabled is None:
             return flat | empty
@@ -265,9 +245,56 @@ class HeightmapActionMask:
         on = on.repeat_interleave(flat.shape[-1] // len(self.primitives))
         return flat | (empty & on)
 
-    def from_observation(self, observation: torch.Tensor) -> torch.Tensor:
-        """Flat mask of network inputs ``(*B, 4, H, W)`` (height in channel 3)."""
-        return self(observation[..., 3, :, :])
+    def from_observation(self, observation: torch.Tensor, fit: torch.Tensor | None = None) -> torch.Tensor:
+        """Flat mask of network inputs ``(*B, 4, H, W)`` (height in channel 3) and their fit heightmaps."""
+        return self(observation[..., 3, :, :], fit)
+
+
+@functools.cache
+def _gripper_cells(pixel_size: float, num_rotations: int, scale: int):
+    """The open gripper over a map ``scale`` times finer than heightmap pixels of ``pixel_size``: ``(reach, descent,
+    closing, model)``, indices into the flattened ``(2 * reach + 1)²`` neighbourhood of the fine pixel at a grasp
+    pixel's centre (the one whose lower corner it is, for an even ``scale``).
+
+    ``descent[r]`` is ``(index, lowest)``: the neighbourhood cells under the gripper at rotation ``r`` and its
+    lowest height above the fingertip TCP over each (m). ``closing[r]`` ``(2, 3, S)``: for each pad (+y, -y), three
+    lines across its width (its two edges and middle) from its inner face towards the other pad, ``S`` cells half a
+    fine pixel apart. ``reach`` is the largest offset (fine pixels), ``model`` the
+    :class:`~maniskill_pnp.scenes.grasp_feasibility.GripperModel`. Rotation ``r`` closes the jaws along
+    ``r * 360° / num_rotations`` from the column axis."""
+    from maniskill_pnp.scenes.grasp_feasibility import panda_gripper
+
+    model = panda_gripper()
+    points = model.points  # x along the pads' width, y the closing direction, lowest height above the TCP
+    cell = pixel_size / scale
+    travel = np.arange(0.0, 2 * model.pad_inner + cell / 4, cell / 2)
+    lines = np.array([[[(x, sign * (model.pad_inner - t)) for t in travel]
+                       for x in (-model.pad_half_width, 0.0, model.pad_half_width)] for sign in (1.0, -1.0)])
+
+    def cells(xy: np.ndarray, yaw: float) -> np.ndarray:  # grasp-frame (x, y) -> fine-pixel offsets (row, col)
+        dx = xy[..., 1] * np.cos(yaw) - xy[..., 0] * np.sin(yaw)
+        dy = xy[..., 1] * np.sin(yaw) + xy[..., 0] * np.cos(yaw)
+        offsets = np.stack([dy, dx], axis=-1) / cell
+        # an odd scale puts a fine pixel's centre on the grasp pixel's, an even one a fine pixel's corner
+        return (np.round(offsets) if scale % 2 else np.floor(offsets)).astype(np.int64)
+
+    under, closing = [], []
+    for rot in range(num_rotations):
+        yaw = rot * 2 * np.pi / num_rotations
+        keys, inverse = np.unique(cells(points[:, :2], yaw), axis=0, return_inverse=True)
+        lowest = np.full(len(keys), np.inf)
+        np.minimum.at(lowest, inverse.reshape(-1), points[:, 2])
+        under.append((keys, lowest))
+        closing.append(cells(lines, yaw))
+    closing = np.stack(closing)
+    reach = int(max(max(np.abs(keys).max() for keys, _ in under), np.abs(closing).max()))
+    k = 2 * reach + 1
+
+    def flat(offsets: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy((offsets[..., 0] + reach) * k + offsets[..., 1] + reach)
+
+    descent = [(flat(keys), torch.from_numpy(lowest).float()) for keys, lowest in under]
+    return reach, descent, flat(closing), model
 
 
 __all__ = ["FIT_TOLERANCE", "HeightmapActionMask"]

@@ -12,6 +12,8 @@ key                     meaning                                                 
 ======================= ============================================================================ ==========
 ``"color_heightmap"``   uint8 ``(*B, H, W, 3)``                                                       read
 ``"depth_heightmap"``   float32 ``(*B, H, W)``                                                        read
+``"fit_heightmap"``     float32 ``(*B, k·H, k·W)``: the grasp-fit test's finer heights (only with       read
+                        ``fit_heightmap=True``)
 ``"action_value"``      the maps flattened row-major: ``(*B, P*R*H*W)``                               written
 ``"action"``            int64 ``(*B,)``: the argmax flat index (``PixelActionLayout``'s index)         written
 ``"action_mask"``       bool ``(*B, P*R*H*W)``: the actions allowed (only with an ``action_mask``)      written
@@ -44,6 +46,8 @@ from torchrl.data import Categorical, TensorSpec
 from torchrl.modules import EGreedyModule
 
 HEIGHTMAP_KEYS = ("color_heightmap", "depth_heightmap")
+#: The env's finer heights for the grasp-fit test (a workspace ``fit_scale`` above 1).
+FIT_KEY = "fit_heightmap"
 
 
 def heightmap_input(color: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
@@ -62,8 +66,8 @@ class GreedyPixelActor(nn.Module):
     Args:
         q_network: ``(N, 4, H, W) -> (N, *action_shape)``, e.g. a
             :class:`~maniskill_pnp.agents.pixel.fcn.MultiPrimitiveQNetwork` (``(N, P, R, H, W)``).
-        action_mask: Optional ``height (*B, H, W) -> bool (*B, P*R*H*W)``; the argmax skips masked-out actions
-            and the mask is returned as a third output.
+        action_mask: Optional ``height (*B, H, W) -> bool (*B, P*R*H*W)`` (or ``(height, fit) -> ...`` when the actor
+            is given fit heightmaps); the argmax skips masked-out actions and the mask is returned as a third output.
         primitive_margins: Optional margin per primitive (the leading axis of the flat ``(P, R, H, W)`` index),
             subtracted from that primitive's Q values for the argmax only (the returned values are the network's):
             with ``(0, m, m)`` a G&S agent slides only where a slide's Q beats the best grasp's by more than ``m``.
@@ -92,7 +96,7 @@ class GreedyPixelActor(nn.Module):
         blocks = values.reshape(*values.shape[:-1], p, -1) - self.primitive_margins.to(values.device)[:, None]
         return blocks.reshape(values.shape)
 
-    def forward(self, color: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def forward(self, color: torch.Tensor, depth: torch.Tensor, fit: torch.Tensor | None = None) -> tuple[torch.Tensor, ...]:
         x = heightmap_input(color, depth)
         batch = x.shape[:-3]
         maps = self.q_network(x.reshape(-1, *x.shape[-3:]))
@@ -100,7 +104,8 @@ class GreedyPixelActor(nn.Module):
         ranked = self._choice_values(values)
         if self.action_mask is None:
             return values, ranked.argmax(dim=-1)
-        mask = self.action_mask(depth.to(torch.float32))
+        height = depth.to(torch.float32)
+        mask = self.action_mask(height) if fit is None else self.action_mask(height, fit.to(torch.float32))
         return values, ranked.masked_fill(~mask, float("-inf")).argmax(dim=-1), mask
 
 
@@ -146,6 +151,7 @@ def make_pixel_policy(
     action_mask: Callable[[torch.Tensor], torch.Tensor] | None = None,
     explore_weights: Sequence[float] | None = None,
     primitive_margins: Sequence[float] | None = None,
+    fit_heightmap: bool = False,
 ) -> tuple[TensorDictModule, TensorDictSequential, EGreedyModule]:
     """The greedy pixel actor and the same actor with ε-greedy exploration.
 
@@ -158,10 +164,11 @@ def make_pixel_policy(
         explore_weights: Optional share of each primitive among the random actions (see
             :class:`PrimitiveExploreMask`); ``None`` draws uniformly over the allowed actions.
         primitive_margins: Optional margin per primitive for the greedy choice (see :class:`GreedyPixelActor`).
+        fit_heightmap: The actor also reads :data:`FIT_KEY` and hands it to ``action_mask``.
 
     Returns:
-        ``(greedy, explore, egreedy)``; both policies read :data:`HEIGHTMAP_KEYS` and write ``"action_value"`` and
-        ``"action"``.
+        ``(greedy, explore, egreedy)``; both policies read :data:`HEIGHTMAP_KEYS` (and :data:`FIT_KEY`) and write
+        ``"action_value"`` and ``"action"``.
 
     Example:
         >>> greedy, explore, egreedy = make_pixel_policy(net, env.action_spec, eps_init=0.3, eps_end=0.1,
@@ -171,7 +178,8 @@ def make_pixel_policy(
     if not isinstance(action_spec, Categorical):
         raise TypeError(f"a pixel policy needs a Categorical action spec, got {type(action_spec).__name__}")
     out_keys = ["action_value", "action"] + (["action_mask"] if action_mask is not None else [])
-    greedy = TensorDictModule(GreedyPixelActor(q_network, action_mask, primitive_margins), in_keys=list(HEIGHTMAP_KEYS), out_keys=out_keys)
+    in_keys = list(HEIGHTMAP_KEYS) + ([FIT_KEY] if fit_heightmap else [])
+    greedy = TensorDictModule(GreedyPixelActor(q_network, action_mask, primitive_margins), in_keys=in_keys, out_keys=out_keys)
     mask_key = "action_mask" if action_mask is not None else None
     steps = [greedy]
     if explore_weights is not None:
@@ -188,4 +196,4 @@ def make_pixel_policy(
     return greedy, TensorDictSequential(*steps, egreedy), egreedy
 
 
-__all__ = ["HEIGHTMAP_KEYS", "GreedyPixelActor", "PrimitiveExploreMask", "heightmap_input", "make_pixel_policy"]
+__all__ = ["FIT_KEY", "HEIGHTMAP_KEYS", "GreedyPixelActor", "PrimitiveExploreMask", "heightmap_input", "make_pixel_policy"]

@@ -21,16 +21,18 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import LazyMemmapStorage, TensorDictPrioritizedReplayBuffer
 
-from maniskill_pnp.agents.pixel.policy import heightmap_input
+from maniskill_pnp.agents.pixel.policy import FIT_KEY, heightmap_input
 
 _OBS_KEYS = ("observation", ("next", "observation"))
 
 
 def to_transitions(batch: TensorDictBase) -> TensorDict:
-    """Flat collector frames -> the transitions the loss reads (heightmap ``"observation"`` built from the env keys)."""
+    """Flat collector frames -> the transitions the loss reads (heightmap ``"observation"`` built from the env keys;
+    where the env observes fit heightmaps, the next state's as float16 ``("next", "fit_heightmap")``, for the
+    bootstrap's action mask)."""
     nxt = batch.get("next")
     n = batch.batch_size[0]
-    return TensorDict(
+    out = TensorDict(
         {
             "observation": heightmap_input(batch.get("color_heightmap"), batch.get("depth_heightmap")),
             "action": batch.get("action").reshape(n),
@@ -43,6 +45,10 @@ def to_transitions(batch: TensorDictBase) -> TensorDict:
         },
         batch_size=[n],
     )
+    fit = nxt.get(FIT_KEY, default=None)
+    if fit is not None:
+        out.set(("next", FIT_KEY), fit.to(torch.float16))
+    return out
 
 
 def pack(obs: torch.Tensor) -> TensorDict:
