@@ -50,6 +50,8 @@ def test_bundled_agent_loads_as_a_three_primitive_greedy_policy(name, backbone):
     assert cfg.preset == name and cfg.backbone == backbone
     assert counters["steps"] > 0
     assert path.stat().st_size < 16 * 2**20  # weights only, float16
+    if name == "gs-cpu-equi-fit":  # the default agent tests its grasps' fit on the 3.5 mm fit heightmap
+        assert (cfg.mask_grasp_fit, cfg.mask_fit_scale, cfg.heightmap_size) == (True, 2, 64)
 
 
 def test_export_keeps_only_config_and_weights(tiny_clutter_run, tmp_path):
