@@ -21,7 +21,9 @@ the object itself (wider than the open jaws) is masked out, so a grasp-and-slide
 has only its slides left. Where no grasp fits and no other primitive may act (a grasp-only agent, or no slide
 starts anywhere), the grasps fall back to the material test, so the agent still acts. It is the heightmap's view
 of :mod:`~maniskill_pnp.scenes.grasp_feasibility` (which sees the collision shapes): no object state, only what the
-camera shows.
+camera shows. Given a *fit heightmap* (the env's ``fit_heightmap``: the same camera points on a grid ``k`` times finer,
+see :attr:`~maniskill_pnp.cell.workspace.WorkspaceSpec.fit_scale`) the test reads that instead, so the pads' edges and
+the friction slope are judged at ``pixel_size / k``; the network keeps its heightmap.
 
 The mask is a pure function of the height channel, so it costs no replay storage: the actor computes it from the
 current heightmap and the loss from the next one.
