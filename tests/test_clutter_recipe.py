@@ -107,6 +107,8 @@ PRESET_VALUES = {
                              hard_sets=("hard_train", "packed_train")),
     "gs-cpu-equi-fine": dict(task="grasp_slide", backbone="equivariant", hard_fraction=0.5, mask_grasp_fit=True,
                              mask_fit_scale=2, loss_cost=1.0, hard_sets=("hard_train", "packed_train")),
+    "gs-cpu-equi-each": dict(task="grasp_slide", backbone="equivariant", hard_fraction=0.5, mask_grasp_fit=True,
+                             mask_fit_scale=2, loss_cost=1.0, reward_scheme="unlock_each"),
 }
 
 

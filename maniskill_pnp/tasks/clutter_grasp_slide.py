@@ -21,7 +21,9 @@ Reward schemes (:data:`REWARD_SCHEMES`): ``"default"`` pays a slide for any chan
 object graspable that was not (``info["slide_unlocked"]``: objects near the ones it moved that were *locked*
 before it and are not after, by :func:`~maniskill_pnp.scenes.grasp_feasibility.grasp_feasibility` on the objects'
 collision shapes at their poses, on the grid of :data:`UNLOCK_CHECK`). A slide that merely shuffles objects that a
-grasp could take anyway, or pushes a locked block as a whole, then earns nothing.
+grasp could take anyway, or pushes a locked block as a whole, then earns nothing. ``"unlock_each"`` counts what
+``"unlock"`` judges: 0.5 per object the slide made graspable, up to :data:`UNLOCK_EACH_CAP` objects (a slide never
+pays more than a placement), so one slide that frees two objects earns what two slides that free one each earn.
 """
 
 from __future__ import annotations
@@ -40,8 +42,13 @@ REWARD_SCHEMES = {
     "default": dict(place=1.0, grasp=0.8, slide=0.5),
     "no_slide_reward": dict(place=1.0, grasp=0.8, slide=0.0),
     "unlock": dict(place=1.0, grasp=0.8, slide=0.5),
+    "unlock_each": dict(place=1.0, grasp=0.8, slide=0.5),
 }
-#: The grasp-feasibility grid of the ``"unlock"`` scheme: the agent's 8 jaw lines, a coarser grid than
+#: The schemes that judge a slide by the objects it made graspable (``info["slide_unlocked"]``).
+UNLOCK_SCHEMES = ("unlock", "unlock_each")
+#: ``"unlock_each"`` pays ``slide`` per object freed, for at most this many objects (0.5 × 2: a placement's 1.0).
+UNLOCK_EACH_CAP = 2
+#: The grasp-feasibility grid of the unlock schemes: the agent's 8 jaw lines, a coarser grid than
 #: ``check-scene``'s (a check of the objects around a slide takes about 0.1-0.3 s on one core).
 UNLOCK_CHECK = dict(yaw_step_deg=22.5, position_step=0.004, resolution=0.001, first_only=True)
 #: Objects moved by more than this (m) count as moved by a slide; objects within UNLOCK_REACH (m, centre to
@@ -86,7 +93,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
     apart objects that no grasp fits. Observations as ClutterGrasp-v1's.
     Reward (``reward_scheme="default"``): 1 placed in the bin, 0.8 grasped but not placed, 0.5 a slide that
     changed the heightmap without knocking an object out of the workspace, 0 otherwise; ``"no_slide_reward"`` gives
-    slides 0; with ``loss_cost=c``, c less per object the action lost off the workspace (a slide's or a grasp's).
+    slides 0, ``"unlock"`` 0.5 only to a slide that made a locked object graspable, ``"unlock_each"`` 0.5 per
+    object so freed (at most 1); with ``loss_cost=c``, c less per object the action lost off the workspace (a slide's or a grasp's).
 
     **Randomizations:**
     - random clutters as ClutterGrasp-v1's: ``num_objects`` (10 by default; presets ``"min"`` 6–10,
@@ -102,7 +110,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
       in a row (a grasp that held nothing or a slide that changed nothing) or ``max_actions`` actions.
       ``info`` is ClutterGrasp-v1's plus ``primitive`` (name), ``primitive_index``, ``slide_changed``,
       ``changed_pixels``, ``knocked_out`` (objects the slide pushed out of the workspace) and ``slide_unlocked``
-      (objects the slide made graspable; counted by the ``"unlock"`` reward scheme only, 0 otherwise).
+      (objects the slide made graspable; counted by the ``"unlock"`` and ``"unlock_each"`` reward schemes only, 0
+      otherwise).
     """
 
     PRIMITIVES = ("grasp", "left_slide", "right_slide")
@@ -185,7 +194,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
 
     def _snapshot(self, env):
         snap = super()._snapshot(env)
-        if self.reward_scheme == "unlock":
+        if self.reward_scheme in UNLOCK_SCHEMES:
             snap["objects"] = self.clutter.workspace_objects(env)
         return snap
 
@@ -225,8 +234,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         if knocked_out > 0:  # pushing objects off the workspace is no progress: no reward, and it counts as a failure
             outcome["reason"] = f"the slide knocked {knocked_out} object(s) out of the workspace"
             return Judgement(0.0, False, outcome)
-        pays = changed
-        if self.reward_scheme == "unlock" and changed:
-            outcome["slide_unlocked"] = self._unlocked(env, before["objects"])
-            pays = outcome["slide_unlocked"] > 0
-        return Judgement(self.rewards["slide"] if pays else 0.0, changed, outcome)
+        pays = float(changed)  # the number of slide rewards this slide earns
+        if self.reward_scheme in UNLOCK_SCHEMES and changed:
+            freed = outcome["slide_unlocked"] = self._unlocked(env, before["objects"])
+            pays = float(freed > 0) if self.reward_scheme == "unlock" else float(min(freed, UNLOCK_EACH_CAP))
+        return Judgement(self.rewards["slide"] * pays, changed, outcome)
