@@ -23,7 +23,8 @@ before it and are not after, by :func:`~maniskill_pnp.scenes.grasp_feasibility.g
 collision shapes at their poses, on the grid of :data:`UNLOCK_CHECK`). A slide that merely shuffles objects that a
 grasp could take anyway, or pushes a locked block as a whole, then earns nothing. ``"unlock_each"`` counts what
 ``"unlock"`` judges: 0.5 per object the slide made graspable, up to :data:`UNLOCK_EACH_CAP` objects (a slide never
-pays more than a placement), so one slide that frees two objects earns what two slides that free one each earn.
+pays more than a placement), so one slide that frees two objects earns what two slides that free one each earn,
+in one action fewer.
 """
 
 from __future__ import annotations
@@ -94,7 +95,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
     Reward (``reward_scheme="default"``): 1 placed in the bin, 0.8 grasped but not placed, 0.5 a slide that
     changed the heightmap without knocking an object out of the workspace, 0 otherwise; ``"no_slide_reward"`` gives
     slides 0, ``"unlock"`` 0.5 only to a slide that made a locked object graspable, ``"unlock_each"`` 0.5 per
-    object so freed (at most 1); with ``loss_cost=c``, c less per object the action lost off the workspace (a slide's or a grasp's).
+    object so freed (at most 1); with ``loss_cost=c``, c less per object the action lost off the workspace (a
+    slide's or a grasp's).
 
     **Randomizations:**
     - random clutters as ClutterGrasp-v1's: ``num_objects`` (10 by default; presets ``"min"`` 6–10,
