@@ -22,8 +22,8 @@ object graspable that was not (``info["slide_unlocked"]``: objects near the ones
 before it and are not after, by :func:`~maniskill_pnp.scenes.grasp_feasibility.grasp_feasibility` on the objects'
 collision shapes at their poses, on the grid of :data:`UNLOCK_CHECK`). A slide that merely shuffles objects that a
 grasp could take anyway, or pushes a locked block as a whole, then earns nothing. ``"unlock_each"`` counts what
-``"unlock"`` judges: 0.5 per object the slide made graspable, up to :data:`UNLOCK_EACH_CAP` objects (a slide never
-pays more than a placement), so one slide that frees two objects earns what two slides that free one each earn,
+``"unlock"`` judges: 0.5 per object the slide made graspable, for at most two objects (a slide never pays more than
+a placement), so one slide that frees two objects earns what two slides that free one each earn,
 in one action fewer.
 """
 
@@ -38,17 +38,15 @@ from maniskill_pnp.scenes.grasp_feasibility import grasp_feasibility
 from maniskill_pnp.tasks.primitive_env import Judgement
 from maniskill_pnp.tasks.registration import register_task
 
-#: Rewards per scheme: object placed in the bin, grasped but not placed, slide that changed the scene.
+#: Rewards per scheme: object placed in the bin, grasped but not placed, slide that changed the scene; and
+#: ``freed_paid``: when > 0 the scheme judges a slide by the objects it made graspable (``info["slide_unlocked"]``)
+#: and pays ``slide`` per such object, for at most ``freed_paid`` of them (0: a slide pays for any change).
 REWARD_SCHEMES = {
-    "default": dict(place=1.0, grasp=0.8, slide=0.5),
-    "no_slide_reward": dict(place=1.0, grasp=0.8, slide=0.0),
-    "unlock": dict(place=1.0, grasp=0.8, slide=0.5),
-    "unlock_each": dict(place=1.0, grasp=0.8, slide=0.5),
+    "default": dict(place=1.0, grasp=0.8, slide=0.5, freed_paid=0),
+    "no_slide_reward": dict(place=1.0, grasp=0.8, slide=0.0, freed_paid=0),
+    "unlock": dict(place=1.0, grasp=0.8, slide=0.5, freed_paid=1),
+    "unlock_each": dict(place=1.0, grasp=0.8, slide=0.5, freed_paid=2),
 }
-#: The schemes that judge a slide by the objects it made graspable (``info["slide_unlocked"]``).
-UNLOCK_SCHEMES = ("unlock", "unlock_each")
-#: ``"unlock_each"`` pays ``slide`` per object freed, for at most this many objects (0.5 × 2: a placement's 1.0).
-UNLOCK_EACH_CAP = 2
 #: The grasp-feasibility grid of the unlock schemes: the agent's 8 jaw lines, a coarser grid than
 #: ``check-scene``'s (a check of the objects around a slide takes about 0.1-0.3 s on one core).
 UNLOCK_CHECK = dict(yaw_step_deg=22.5, position_step=0.004, resolution=0.001, first_only=True)
@@ -150,7 +148,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
 
     @property
     def rewards(self) -> dict[str, float]:
-        """Reward per outcome of the reward scheme: ``place``, ``grasp`` and ``slide`` (a slide that changed the scene)."""
+        """Reward per outcome of the reward scheme: ``place``, ``grasp`` and ``slide`` (a slide that changed the scene),
+        and ``freed_paid`` (see :data:`REWARD_SCHEMES`)."""
         return REWARD_SCHEMES[self.reward_scheme]
 
     # ------------------------------------------------------------------ layouts
@@ -196,7 +195,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
 
     def _snapshot(self, env):
         snap = super()._snapshot(env)
-        if self.reward_scheme in UNLOCK_SCHEMES:
+        if self.rewards["freed_paid"]:
             snap["objects"] = self.clutter.workspace_objects(env)
         return snap
 
@@ -236,8 +235,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         if knocked_out > 0:  # pushing objects off the workspace is no progress: no reward, and it counts as a failure
             outcome["reason"] = f"the slide knocked {knocked_out} object(s) out of the workspace"
             return Judgement(0.0, False, outcome)
-        pays = float(changed)  # the number of slide rewards this slide earns
-        if self.reward_scheme in UNLOCK_SCHEMES and changed:
-            freed = outcome["slide_unlocked"] = self._unlocked(env, before["objects"])
-            pays = float(freed > 0) if self.reward_scheme == "unlock" else float(min(freed, UNLOCK_EACH_CAP))
+        pays = int(changed)  # the number of slide rewards this slide earns
+        if self.rewards["freed_paid"] and changed:
+            outcome["slide_unlocked"] = self._unlocked(env, before["objects"])
+            pays = min(outcome["slide_unlocked"], self.rewards["freed_paid"])
         return Judgement(self.rewards["slide"] * pays, changed, outcome)
