@@ -235,6 +235,16 @@ def _train_clutter(args) -> None:
     print(json.dumps(summary, indent=2))
 
 
+def _presets_epilog(descriptions: dict[str, str]) -> str:
+    """The end of ``train-clutter --help``: each preset with its one line, and where the other recipes are."""
+    width = max(map(len, descriptions)) + 2
+    lines = [f"  {name:<{width}}{text}" for name, text in descriptions.items()]
+    return "\n".join(["presets (--preset NAME):", *lines, "",
+                      "The recipes of single experiments (the hard-clutter series gs-cpu-equi-hard, -keep, -fine, -each;",
+                      "the Part II comparisons; more thesis-size comparisons) are config files in the repository's",
+                      "docs/configs/: --config docs/configs/NAME.yaml trains one, in a run folder named as before."])
+
+
 def _run_job(args, module: str, config: str, command: str) -> dict:
     """Build the dataclass ``config`` of ``module`` from the parsed options and call the module's ``run``; a missing
     file or a bad value ends the command with one line naming the problem."""
@@ -252,6 +262,18 @@ def _eval_clutter(args) -> None:
     summary = _run_job(args, "maniskill_pnp.agents.pixel.evaluate", "ClutterEvalConfig", "eval-clutter")
     print(json.dumps(summary["metrics"], indent=2))
     print("\n".join(f"{k}: {v}" for k, v in summary["files"].items()))
+
+
+def _benchmark(args) -> None:
+    from maniskill_pnp.bench.protocol import BenchmarkConfig, run
+
+    try:
+        result = run(BenchmarkConfig(**_config_values(args, BenchmarkConfig)))
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"benchmark: {e}") from e
+    if result["failed"]:
+        raise SystemExit(f"benchmark: {len(result['failed'])} part(s) failed: {', '.join(result['failed'])}; "
+                         "run the command again to retry them")
 
 
 def _compare_clutter(args) -> None:
@@ -491,13 +513,17 @@ def build_parser() -> argparse.ArgumentParser:
                                                            speed=SPEEDS, object_kinds=OBJECT_KINDS, logger=LOGGERS))
     train.set_defaults(func=_train_conveyor)
 
-    clutter = sub.add_parser("train-clutter", help="train a pixelwise DQN agent: grasping on ClutterGrasp-v1 (thesis part II, "
-                             "presets cpu-small, thesis) or G&S on ClutterGraspSlide-v1 (part III, presets gs-*)")
+    from maniskill_pnp.agents.pixel.config import preset_descriptions
+
+    clutter = sub.add_parser("train-clutter", help="train a pixelwise DQN agent: grasping on ClutterGrasp-v1 (thesis part II; "
+                             "its default agent: --preset cpu-equi) or G&S on ClutterGraspSlide-v1 (part III; the bundled "
+                             "agent's recipe: --preset gs-cpu-equi-fit)", epilog=_presets_epilog(preset_descriptions()),
+                             formatter_class=argparse.RawDescriptionHelpFormatter)
     add_config_options(clutter, ClutterConfig, only=("preset",), choices=dict(preset=list(presets())),
                        unset="the config file's, else cpu-small")
     clutter.add_argument("--config", type=Path, default=None,
-                         help="YAML or JSON file of config fields (e.g. a run's config.json); the preset's values, then "
-                         "the file's, then the options given here")
+                         help="YAML or JSON file of config fields (e.g. a run's config.json, or one of docs/configs/); "
+                         "its base preset's values (its 'preset'), then the file's, then the options given here")
     add_config_options(clutter, ClutterConfig, skip=("preset",), choices=CLUTTER_CHOICES, unset="the preset's value")
     clutter.set_defaults(func=_train_clutter)
 
@@ -514,6 +540,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_config_options(evc, ClutterEvalConfig)
     evc.set_defaults(func=_eval_clutter)
+
+    bm = sub.add_parser("benchmark", help="the whole evaluation protocol of one or more agents in one command, both "
+                        "cores, resumable: Table IX per scenario, the hard sets guarded, G&S - grasp-only paired per "
+                        "scene, lost objects by cause, figures and the worst episodes' decisions in one report folder")
+    from maniskill_pnp.bench.protocol import BenchmarkConfig
+
+    add_config_options(bm, BenchmarkConfig, positional=("agents",))
+    bm.set_defaults(func=_benchmark)
 
     cmp = sub.add_parser("compare-clutter", help="paired per-scene differences of two eval-clutter runs on the same "
                          "scenes (e.g. a G&S agent against its --grasp-only restriction): A - B of every metric, ± its "

@@ -453,13 +453,14 @@ def test_eval_clutter(jobs):
     assert list(summary["metrics"]) == ["train"] and len(summary["episodes"]) == 1
     assert all(0.0 <= summary["metrics"]["train"][k] <= 1.0 for k in METRICS)
     assert {Path(p).name for p in summary["files"].values()} == {
-        "eval_summary.json", "eval_table.md", "eval_table.csv", "eval_episodes.csv", "q_heatmaps.png"}
+        "eval_summary.json", "eval_table.md", "eval_table.csv", "eval_episodes.csv", "q_heatmaps.png", "eval_metrics.png"}
     _csv(out / "eval_table.csv", SCENARIO_COLUMNS, 1)
     (row,) = _markdown_table(out / "eval_table.md", TABLE_HEADER, 1)
     assert row.startswith("| train | 1 |")
     (episode,) = _csv(out / "eval_episodes.csv", EPISODE_COLUMNS, 1)
     assert 1 <= int(episode["actions"]) <= 2
     _png(out / "q_heatmaps.png", 100, 300)
+    _png(out / "eval_metrics.png", 200, 300)
     assert ran.json_stdout() == summary["metrics"] and "q_heatmaps.png" in ran.stdout
 
 

@@ -16,7 +16,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from maniskill_pnp.agents.pixel.curves import load_actions, plot_training_curves, run_curves, trailing_mean
 from maniskill_pnp.agents.pixel.checkpoint import load_checkpoint
-from maniskill_pnp.agents.pixel.config import PRESETS_FILE, ClutterConfig, presets
+from maniskill_pnp.agents.pixel.config import PRESETS_FILE, RETIRED_PRESETS, ClutterConfig, preset_descriptions, presets
 from maniskill_pnp.agents.pixel.evaluate import EpisodeTally
 from maniskill_pnp.agents.pixel.factories import make_env, make_model, make_policy
 from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS, OutcomeTracker
@@ -72,59 +72,39 @@ def test_epsilon_one_draws_valid_varied_indices():
 
 
 #: A few fields of every preset (task, backbone, loss, rotations, heightmap size, steps, batch size, and the ablation
-#: each gs-* preset exists for).
+#: each gs-* preset exists for). The recipes that were presets until 2026-12 are checked in tests/test_config_files.py.
 PRESET_VALUES = {
     "cpu-small": dict(task="grasp", backbone="small", loss="dqn", num_rotations=16, heightmap_size=64, steps=300, batch_size=4),
+    "cpu-equi": dict(task="grasp", backbone="equivariant", num_rotations=16, heightmap_size=64, steps=300, batch_size=4),
     "thesis": dict(task="grasp", backbone="densenet121", num_rotations=16, heightmap_size=224, num_objects=10,
                    episodes=3000, steps=90_000, batch_size=1, replay_capacity=50_000, success_window=200),
     "gs-cpu-small": dict(task="grasp_slide", backbone="small", num_rotations=16, heightmap_size=64, steps=300),
-    "gs-thesis": dict(task="grasp_slide", backbone="densenet121", num_rotations=16, heightmap_size=224, steps=90_000,
-                      eps_decay_steps=10_000, target_update_interval=500, checkpoint_interval=500, log_interval=50),
-    "gs-resnet101": dict(task="grasp_slide", backbone="resnet101", num_rotations=16, heightmap_size=224),
-    "gs-bce": dict(task="grasp_slide", backbone="densenet121", loss="bce", delay_value=False, heightmap_size=224),
-    "gs-no-slide-reward": dict(task="grasp_slide", reward_scheme="no_slide_reward", backbone="densenet121"),
-    "gs-no-depth": dict(task="grasp_slide", use_depth=False, backbone="densenet121", num_rotations=16),
-    "gs-double-dqn": dict(task="grasp_slide", double_dqn=True, delay_value=True, backbone="densenet121"),
-    "cpu-equi": dict(task="grasp", backbone="equivariant", num_rotations=16, heightmap_size=64, steps=300, batch_size=4),
-    "cpu-equi-no-depth": dict(task="grasp", backbone="equivariant", use_depth=False, num_rotations=16),
-    "cpu-densenet121-s8": dict(task="grasp", backbone="densenet121-s8", use_depth=True, num_rotations=4, heightmap_size=64),
-    "cpu-resnet101-s8": dict(task="grasp", backbone="resnet101-s8", use_depth=True, num_rotations=4, heightmap_size=64),
     "gs-cpu-equi": dict(task="grasp_slide", backbone="equivariant", num_rotations=16, head_channels=32, heightmap_size=64,
                         steps=300),
+    "gs-cpu-equi-fit": dict(task="grasp_slide", backbone="equivariant", head_channels=32, hard_fraction=0.5,
+                            guard_force=20.0, reward_scheme="unlock", explore_weights=(2.0, 1.0, 1.0), updates_per_step=2,
+                            mask_grasp_fit=True, mask_fit_scale=1, loss_cost=0.0, hard_sets=("hard_train",)),
+    "gs-thesis": dict(task="grasp_slide", backbone="densenet121", num_rotations=16, heightmap_size=224, steps=90_000,
+                      eps_decay_steps=10_000, target_update_interval=500, checkpoint_interval=500, log_interval=50),
     "gs-cpu-equi-no-depth": dict(task="grasp_slide", backbone="equivariant", head_channels=32, use_depth=False,
                                  loss="dqn", reward_scheme="default"),
     "gs-cpu-equi-bce": dict(task="grasp_slide", backbone="equivariant", head_channels=32, use_depth=True, loss="bce",
                             delay_value=False, reward_scheme="default"),
     "gs-cpu-equi-no-slide-reward": dict(task="grasp_slide", backbone="equivariant", head_channels=32, use_depth=True,
                                         loss="dqn", reward_scheme="no_slide_reward"),
-    "gs-cpu-equi-hard": dict(task="grasp_slide", backbone="equivariant", head_channels=32, hard_fraction=0.5,
-                             guard_force=20.0, reward_scheme="unlock", explore_weights=(2.0, 1.0, 1.0), updates_per_step=2),
-    "gs-cpu-equi-fit": dict(task="grasp_slide", backbone="equivariant", head_channels=32, hard_fraction=0.5,
-                            guard_force=20.0, reward_scheme="unlock", explore_weights=(2.0, 1.0, 1.0), updates_per_step=2,
-                            mask_grasp_fit=True),
-    "gs-cpu-equi-keep": dict(task="grasp_slide", backbone="equivariant", hard_fraction=0.5, guard_force=20.0,
-                             reward_scheme="unlock", mask_grasp_fit=True, loss_cost=1.0,
-                             hard_sets=("hard_train", "packed_train")),
-    "gs-cpu-equi-fine": dict(task="grasp_slide", backbone="equivariant", hard_fraction=0.5, mask_grasp_fit=True,
-                             mask_fit_scale=2, loss_cost=1.0, hard_sets=("hard_train", "packed_train")),
-    "gs-cpu-equi-each": dict(task="grasp_slide", backbone="equivariant", hard_fraction=0.5, mask_grasp_fit=True,
-                             mask_fit_scale=2, loss_cost=1.0, reward_scheme="unlock_each"),
+    "gs-no-depth": dict(task="grasp_slide", use_depth=False, backbone="densenet121", num_rotations=16, heightmap_size=224),
+    "gs-bce": dict(task="grasp_slide", backbone="densenet121", loss="bce", delay_value=False, heightmap_size=224),
 }
 
 
 @pytest.mark.parametrize("name", list(PRESET_VALUES))
 def test_every_preset_loads_with_its_values(name):
     cfg = ClutterConfig.from_preset(name)
-    assert cfg.preset == name
+    assert cfg.preset == name and cfg.name is None and cfg.run_name.startswith(f"{name}_")
     assert {field: getattr(cfg, field) for field in PRESET_VALUES[name]} == PRESET_VALUES[name]
 
 
-#: Presets with fewer jaw orientations, and why: the rotated-copies trunk pair at 16 rotations took ~15 s per training
-#: step on 2 cores (the equivariant network computes all 16 rotations 40x faster), so the pair compares trunks on 4.
-FEWER_ROTATIONS = {"cpu-densenet121-s8", "cpu-resnet101-s8"}
-
-
-@pytest.mark.parametrize("name", [name for name in PRESET_VALUES if name not in FEWER_ROTATIONS])
+@pytest.mark.parametrize("name", list(PRESET_VALUES))
 def test_every_preset_has_eight_jaw_orientations(name):
     """A parallel-jaw grasp at rotation r and r + R/2 is one jaw line: R = 16 gives 8 orientations 22.5 degrees apart."""
     cfg = ClutterConfig.from_preset(name)
@@ -139,8 +119,34 @@ def test_presets_file_is_the_list_of_presets_and_overrides_apply():
     assert ClutterConfig.from_preset("gs-cpu-small").primitives == ("grasp", "left_slide", "right_slide")
 
 
+def test_presets_are_few_with_one_line_each_in_the_help():
+    """A user picks from at most 12 presets, each described by one line that `train-clutter --help` shows; the
+    recipes that left the list are not presets any more."""
+    descriptions = preset_descriptions()
+    assert list(descriptions) == list(presets()) and len(descriptions) <= 12
+    assert all(text and "\n" not in text and len(text) <= 100 for text in descriptions.values())
+    assert not set(presets()) & set(RETIRED_PRESETS) and set(RETIRED_PRESETS.values()) <= set(presets())
+    from maniskill_pnp.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["train-clutter"]
+    text = sub.format_help()
+    for name, line in descriptions.items():
+        assert f"  {name} " in text and line in text
+    assert "docs/configs/" in text
+    with pytest.raises(ValueError, match="'gs-cpu-equi-each' is now a config file: .*docs/configs/gs-cpu-equi-each.yaml"):
+        ClutterConfig.from_preset("gs-cpu-equi-each")
+
+
+def test_a_run_name_starts_with_the_name_where_one_is_set():
+    cfg = ClutterConfig.from_preset("gs-cpu-equi", name="my-variant", seed=2)
+    assert cfg.run_name == "my-variant_equivariant_r16_px64_seed2" and cfg.preset == "gs-cpu-equi"
+    for bad in ("", "a/b", "../x", "two words"):
+        with pytest.raises(ValueError, match="name must be"):
+            ClutterConfig.from_preset("gs-cpu-equi", name=bad)
+
+
 def test_unknown_preset_lists_the_valid_ones():
-    with pytest.raises(ValueError, match=r"unknown preset 'gs-huge'; valid: \['cpu-small', 'thesis', 'gs-cpu-small'"):
+    with pytest.raises(ValueError, match=r"unknown preset 'gs-huge'; valid: \['cpu-small', 'cpu-equi', 'thesis'"):
         ClutterConfig.from_preset("gs-huge")
 
 

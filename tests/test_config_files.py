@@ -1,12 +1,19 @@
-"""Configs from YAML/JSON files: validated field by field, with errors that name the file and the field."""
+"""Configs from YAML/JSON files: validated field by field, with errors that name the file and the field; the recipes
+of docs/configs/ (presets until 2026-12) against what their presets trained; every shipped agent's config."""
 
 from __future__ import annotations
 
-import pytest
+from pathlib import Path
 
-from maniskill_pnp.agents.pixel.config import ClutterConfig
+import pytest
+import torch
+
+from maniskill_pnp.agents.pixel.checkpoint import ACTING_FIELDS, load_checkpoint
+from maniskill_pnp.agents.pixel.config import RETIRED_PRESETS, ClutterConfig, presets
+from maniskill_pnp.agents.pixel.factories import load_policy
 from maniskill_pnp.agents.tabular.recipe import ConveyorConfig
 from maniskill_pnp.cli import main as cli
+from maniskill_pnp.quickstart import BUNDLED_AGENTS
 
 
 def test_yaml_values_override_defaults_and_round_trip(tmp_path):
@@ -44,3 +51,94 @@ def test_missing_file_and_cli_errors(tmp_path):
     bad.write_text("num_rotations: four\n")
     with pytest.raises(SystemExit, match="train-clutter: config file .*bad.yaml: config field 'num_rotations' must be int"):
         cli(["train-clutter", "--config", str(bad)])
+
+
+# ------------------------------------------------------------------------ the recipes that were presets until 2026-12
+#: What each retired preset trained, as ClutterConfig.from_preset(name) resolved it before it became a config file
+#: (every field that differs from the defaults; recorded from presets.yaml at commit 17987c1). The file
+#: docs/configs/<name>.yaml must give exactly these values, whatever becomes of the presets it starts from.
+THESIS_SIZE = dict(backbone="densenet121", heightmap_size=224, steps=90000, episodes=3000, target_update_interval=500,
+                   batch_size=1, replay_capacity=50000, eps_decay_steps=10000, checkpoint_interval=500, log_interval=50,
+                   success_window=200)
+HARD = dict(task="grasp_slide", reward_scheme="unlock", backbone="equivariant", head_channels=32, hard_fraction=0.5,
+            guard_force=20.0, updates_per_step=2, explore_weights=(2.0, 1.0, 1.0))
+RETIRED_VALUES = {
+    "gs-cpu-equi-hard": HARD,
+    "gs-cpu-equi-keep": {**HARD, "mask_grasp_fit": True, "loss_cost": 1.0, "hard_sets": ("hard_train", "packed_train")},
+    "gs-cpu-equi-fine": {**HARD, "mask_grasp_fit": True, "loss_cost": 1.0, "hard_sets": ("hard_train", "packed_train"),
+                         "mask_fit_scale": 2},
+    "gs-cpu-equi-each": {**HARD, "reward_scheme": "unlock_each", "mask_grasp_fit": True, "loss_cost": 1.0,
+                         "hard_sets": ("hard_train", "packed_train"), "mask_fit_scale": 2},
+    "cpu-equi-no-depth": dict(backbone="equivariant", use_depth=False),
+    "cpu-densenet121-s8": dict(backbone="densenet121-s8", num_rotations=4),
+    "cpu-resnet101-s8": dict(backbone="resnet101-s8", num_rotations=4),
+    "gs-resnet101": {**THESIS_SIZE, "task": "grasp_slide", "backbone": "resnet101"},
+    "gs-no-slide-reward": {**THESIS_SIZE, "task": "grasp_slide", "reward_scheme": "no_slide_reward"},
+    "gs-double-dqn": {**THESIS_SIZE, "task": "grasp_slide", "double_dqn": True},
+}
+CONFIGS = Path(__file__).resolve().parents[1] / "docs" / "configs"
+
+
+def test_every_retired_preset_is_a_config_file_and_nothing_else_is_there():
+    assert set(RETIRED_VALUES) == set(RETIRED_PRESETS)
+    assert {p.stem for p in CONFIGS.glob("*.yaml")} == set(RETIRED_PRESETS)
+    for path in CONFIGS.glob("*.yaml"):
+        first = path.read_text().splitlines()[0]
+        assert first.startswith(f"# {path.stem}: ") and "docs/experiments.md" in first, first  # what it is, who used it
+
+
+@pytest.mark.parametrize("name", sorted(RETIRED_VALUES))
+def test_a_config_file_trains_what_its_preset_did(name, monkeypatch, capsys):
+    """``train-clutter --config docs/configs/NAME.yaml --seed S`` builds the values ``--preset NAME --seed S`` built,
+    in the run folder it used; the config records the base preset and the name."""
+    path = CONFIGS / f"{name}.yaml"
+    expected = {**ClutterConfig().to_json(), **RETIRED_VALUES[name], "seed": 1}
+    cfg = ClutterConfig.from_file(path, seed=1)
+    assert (cfg.preset, cfg.name) == (RETIRED_PRESETS[name], name)
+    values = cfg.to_json()
+    assert {k: v for k, v in values.items() if k not in ("preset", "name")} == \
+           {k: v for k, v in expected.items() if k not in ("preset", "name")}
+    assert cfg.run_name == f"{name}_{cfg.backbone}_r{cfg.num_rotations}_px{cfg.heightmap_size}_seed1"
+    # the command line builds the same config (the training itself replaced by a stub)
+    trained = []
+    monkeypatch.setattr("maniskill_pnp.agents.pixel.recipe.main", lambda c: trained.append(c) or {"run": str(c.run_dir)})
+    cli(["train-clutter", "--config", str(path), "--seed", "1"])
+    assert trained == [cfg] and cfg.run_name in capsys.readouterr().out
+
+
+def test_configs_recorded_under_a_retired_preset_load_as_its_config_file(tmp_path):
+    """A run's config.json (or a checkpoint's config) from before: the same values, the same run folder."""
+    cfg = ClutterConfig.from_file(CONFIGS / "gs-cpu-equi-each.yaml", seed=0)
+    old = {**cfg.to_json(), "preset": "gs-cpu-equi-each"}
+    old.pop("name")  # configs of that time had no name field
+    assert ClutterConfig.from_json(old) == cfg
+    (tmp_path / "config.json").write_text(__import__("json").dumps(old))
+    assert ClutterConfig.from_file(tmp_path / "config.json") == cfg  # `train-clutter --config <old run>/config.json`
+    assert cfg.run_name == "gs-cpu-equi-each_equivariant_r16_px64_seed0"  # the folder the experiment log names
+    with pytest.raises(ValueError, match="now a config file"):
+        ClutterConfig.from_preset("gs-cpu-equi-hard")
+
+
+#: Every agent file the repository ships or keeps: the bundled ones and the experiments' exported agents.
+AGENT_FILES = sorted([*(CONFIGS.parent / "agents").glob("*.pt"), *BUNDLED_AGENTS.values()])
+
+
+@pytest.mark.parametrize("path", AGENT_FILES, ids=lambda p: p.name)
+def test_every_shipped_agent_loads(path):
+    """Each exported agent's config loads, under the name it was trained as (a bundled agent as its preset, an
+    experiment's agent ``<recipe>-seed<S>.pt`` as the recipe it names), and its weights fit the network of that config
+    (no env is made)."""
+    payload = load_checkpoint(path)
+    cfg = ClutterConfig.from_json(payload["config"])
+    actor, acting, _ = load_policy(path, torch.device("cpu"))
+    assert acting.run_name == cfg.run_name and actor.q_network.primitives == cfg.primitives
+    recipe = path.stem.rsplit("-seed", 1)[0]
+    assert cfg.run_name.startswith(f"{recipe}_") and cfg.preset in presets()
+    if recipe in RETIRED_PRESETS:  # trained with the preset the config file now repeats: only the command line differs
+        assert (cfg.preset, cfg.name) == (RETIRED_PRESETS[recipe], recipe)
+        trained, repeated = cfg.to_json(), ClutterConfig.from_file(CONFIGS / f"{recipe}.yaml").to_json()
+        differ = {k for k in trained if trained[k] != repeated[k]}
+        assert differ <= {"steps", "max_minutes", "seed", "out", *ACTING_FIELDS}, differ
+    else:
+        assert (cfg.preset, cfg.name) == (recipe, None)
+    assert set(payload["model"]) and payload["counters"]["steps"] > 0

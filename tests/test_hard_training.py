@@ -112,7 +112,7 @@ def test_unlock_schemes_pay_the_slide_that_frees_a_bar_and_not_one_that_only_mov
 
 
 def test_config_fields_reach_the_training_env_only():
-    cfg = ClutterConfig.from_preset("gs-cpu-equi-hard", heightmap_size=32, num_rotations=4, loss_cost=1.0,
+    cfg = ClutterConfig.from_preset("gs-cpu-equi-fit", heightmap_size=32, num_rotations=4, loss_cost=1.0,
                                     hard_sets=("hard_train", "packed_train"))
     assert (cfg.hard_fraction, cfg.guard_force, cfg.reward_scheme) == (0.5, 20.0, "unlock")
     env = make_env(cfg)
@@ -134,4 +134,4 @@ def test_config_fields_reach_the_training_env_only():
         (dict(reward_scheme="pushy"), "reward scheme"),
     ):
         with pytest.raises(ValueError, match=match):
-            ClutterConfig.from_preset("gs-cpu-equi-hard", **bad)
+            ClutterConfig.from_preset("gs-cpu-equi-fit", **bad)

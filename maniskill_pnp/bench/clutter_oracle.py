@@ -19,11 +19,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import gymnasium as gym
-from tqdm import tqdm
 
 from maniskill_pnp.agents.pixel.evaluate import EpisodeTally, summarize
 from maniskill_pnp.agents.pixel.factories import FILE_SCENARIOS, scenario_layout_files
 from maniskill_pnp.bench.common import print_machine, write_report
+from maniskill_pnp.progress import progress_bar
 from maniskill_pnp.runtime import default_backends
 from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
 from maniskill_pnp.agents.scripted.slide_oracle import FeasibleGraspOracle
@@ -71,7 +71,7 @@ def run(cfg: ClutterOracleBenchConfig) -> dict:
     else:
         oracle = FeasibleGraspOracle(env.unwrapped, slides=cfg.oracle == "slide-then-grasp")
     per_scene, times = [], {"render": [], "heightmap": [], "oracle": [], "motion": [], "planning": [], "step": []}
-    for seed in tqdm(range(cfg.scenes), desc="scenes", unit="scene"):
+    for seed in progress_bar(range(cfg.scenes), desc="scenes", unit="scene"):
         obs, info = env.reset(seed=seed, options=None if files is None else {"layout_index": seed % len(files)})
         objects = int(info["objects_remaining"])
         tally = EpisodeTally(env.unwrapped.primitive_names)

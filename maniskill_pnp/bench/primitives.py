@@ -14,11 +14,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import gymnasium as gym
-from tqdm import tqdm
 
 from maniskill_pnp.bench.common import print_machine, write_report
 from maniskill_pnp.demo import STATIC_ACTORS, cube_grasp_pose
 from maniskill_pnp.planning import MotionPrimitives
+from maniskill_pnp.progress import progress_bar
 from maniskill_pnp.runtime import default_backends
 
 
@@ -44,7 +44,7 @@ def run(cfg: PrimitivesBenchConfig) -> dict:
     pick_plan, walls, steps, successes, failures = [], [], [], 0, []
     t_all = time.perf_counter()
     prims = MotionPrimitives(env, static_actors=STATIC_ACTORS, seed=0)  # one instance per run, as the tasks do
-    for seed in tqdm(range(cfg.episodes), desc="pick-and-place", unit="ep"):
+    for seed in progress_bar(range(cfg.episodes), desc="pick-and-place", unit="ep"):
         env.reset(seed=seed)
         prims.reset()
         t0 = time.perf_counter()
@@ -98,7 +98,7 @@ def _maniskill_yardstick(episodes: int) -> dict:
     env = gym.make("PickCube-v1", obs_mode="none", control_mode="pd_joint_pos", **default_backends())
     solved = 0
     t0 = time.perf_counter()
-    for seed in tqdm(range(episodes), desc="ManiSkill PickCube (mplib)", unit="ep"):
+    for seed in progress_bar(range(episodes), desc="ManiSkill PickCube (mplib)", unit="ep"):
         res = solvePickCube(env, seed=seed, debug=False, vis=False)
         solved += int(res != -1 and bool(res[-1]["success"].item()))
     eps = episodes / (time.perf_counter() - t0)

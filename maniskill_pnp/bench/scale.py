@@ -32,10 +32,10 @@ from pathlib import Path
 
 import gymnasium as gym
 import torch
-from tqdm import tqdm
 
 from maniskill_pnp.agents.run_io import require_positive
 from maniskill_pnp.bench.common import print_machine, write_report
+from maniskill_pnp.progress import progress_bar
 from maniskill_pnp.runtime import default_backends
 
 #: The clutter recipe preset the decision benchmarks measure unless told otherwise.
@@ -132,7 +132,7 @@ def _clutter_primitives(cfg: EnvOverheadBenchConfig) -> dict:
     td = env.reset()
     sums = dict(sim_steps=0, motion=0.0, planning=0.0, step=0.0)
     grasps = 0
-    for _ in tqdm(range(cfg.actions), desc="ClutterGrasp-v1 primitives", unit="action"):
+    for _ in progress_bar(range(cfg.actions), desc="ClutterGrasp-v1 primitives", unit="action"):
         with torch.inference_mode():
             td = policy(td)
         t0 = time.perf_counter()
@@ -244,7 +244,7 @@ def _measure_collection(make_env, policy, workers: int, cfg: CollectionBenchConf
                                backend="process")
     timed = 0
     t0 = time.perf_counter()
-    bar = tqdm(total=batches * workers, desc=f"{cfg.task}, {workers} worker(s)", unit="frame")
+    bar = progress_bar(total=batches * workers, desc=f"{cfg.task}, {workers} worker(s)", unit="frame")
     for i, batch in enumerate(collector):
         bar.update(batch.numel())
         if i + 1 == cfg.warmup:
@@ -323,7 +323,7 @@ def run_decision_breakdown(cfg: DecisionBreakdownBenchConfig) -> dict:
     base = env.base_env
     td = env.reset()
     rows = []
-    for _ in tqdm(range(cfg.decisions), desc=f"{cfg.preset} decisions", unit="decision"):
+    for _ in progress_bar(range(cfg.decisions), desc=f"{cfg.preset} decisions", unit="decision"):
         t0 = time.perf_counter()
         with torch.inference_mode():
             td = policy(td)
@@ -391,7 +391,7 @@ def _time_decisions(ccfg, steps: int, seed: int, **backend) -> dict:
     n = env.batch_size[0] if env.batch_size else 1
     td = env.reset()
     times = []
-    for _ in tqdm(range(steps + 1), desc=f"{backend.get('sim_backend')} x{n}", unit="step"):
+    for _ in progress_bar(range(steps + 1), desc=f"{backend.get('sim_backend')} x{n}", unit="step"):
         t0 = time.perf_counter()
         with torch.inference_mode():
             td = policy(td)

@@ -17,9 +17,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import gymnasium as gym
-from tqdm import tqdm
 
 from maniskill_pnp.bench.common import print_machine, write_report
+from maniskill_pnp.progress import progress_bar
 from maniskill_pnp.runtime import default_backends
 
 #: (task id, num_objects) of the densities measured; None: the task's default.
@@ -71,7 +71,7 @@ def count_scenes(env, seeds, redrop_rounds: int | None, bar=None) -> dict:
 def run(cfg: SceneCountsBenchConfig) -> dict:
     seeds = range(cfg.seed, cfg.seed + cfg.scenes)
     results = {}
-    with tqdm(total=2 * cfg.scenes * len(DENSITIES), desc="resets", unit="reset") as bar:
+    with progress_bar(total=2 * cfg.scenes * len(DENSITIES), desc="resets", unit="reset") as bar:
         for uid, density in DENSITIES:
             env = gym.make(uid, **({} if density is None else dict(num_objects=density)), **default_backends())
             try:

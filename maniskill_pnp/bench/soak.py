@@ -24,9 +24,9 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from maniskill_pnp.bench.common import print_machine, write_report
+from maniskill_pnp.progress import progress_bar
 from maniskill_pnp.runtime import default_backends
 
 _PAGE = os.sysconf("SC_PAGE_SIZE")
@@ -108,7 +108,7 @@ def run(cfg: SoakBenchConfig) -> dict:
     obs, _ = env.reset(seed=cfg.seed)
     counts = scene_counts(env)
     settings = {k: str(v) for k, v in asdict(cfg).items()}
-    with tqdm(total=cfg.actions, desc="soak ClutterGraspSlide-v1", unit="action") as bar:
+    with progress_bar(total=cfg.actions, desc="soak ClutterGraspSlide-v1", unit="action") as bar:
         for i in range(cfg.actions):
             obs, reward, terminated, truncated, info = env.step(random_action(obs, env, rng, mask))
             memory.append(rss_mb())

@@ -1,8 +1,11 @@
 """The config of a pixelwise DQN run (:class:`ClutterConfig`) and its presets.
 
 A run is described by one frozen dataclass, saved as ``config.json`` in its run folder. Presets are data: the file
-``presets.yaml`` beside this module lists, per preset, the fields that differ from the dataclass defaults (which are
-the ``cpu-small`` preset). :meth:`ClutterConfig.from_preset` applies one, then any overrides.
+``presets.yaml`` beside this module lists, per preset, a one-line description and the fields that differ from the
+dataclass defaults (which are the ``cpu-small`` preset). :meth:`ClutterConfig.from_preset` applies one, then any
+overrides. A config file (:meth:`ClutterConfig.from_file`, ``train-clutter --config FILE``) names a preset as its base
+and the fields it changes; the recipes of single experiments, presets until 2026-12 (:data:`RETIRED_PRESETS`), are
+such files in the repository's ``docs/configs/``.
 
 Example:
     >>> cfg = ClutterConfig.from_preset("gs-cpu-small", seed=2)
@@ -14,6 +17,8 @@ from __future__ import annotations
 
 import functools
 import math
+import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,19 +45,46 @@ CHOICES = dict(task=tuple(TASKS), loss=LOSSES, optimizer=OPTIMIZERS, backbone=BA
 ARCHITECTURE_FIELDS = (
     "task", "loss", "backbone", "use_depth", "head_channels", "num_rotations", "heightmap_size", "workspace_side",
 )
-#: The presets file: preset name -> the fields it sets.
+#: The presets file: preset name -> its ``description`` and the fields it sets.
 PRESETS_FILE = Path(__file__).with_name("presets.yaml")
+#: Presets that became config files (``docs/configs/<name>.yaml`` in the repository, each naming its base preset and
+#: ``name: <name>``): name -> that base preset. Runs and exported agents made before record the old name as their
+#: ``preset``; a config read with one (a checkpoint, a run's ``config.json``, a file) gets ``preset`` = the base and
+#: ``name`` = the old name, so it loads, and its run name stays what it was.
+RETIRED_PRESETS = {
+    "gs-cpu-equi-hard": "gs-cpu-equi",
+    "gs-cpu-equi-keep": "gs-cpu-equi-fit",
+    "gs-cpu-equi-fine": "gs-cpu-equi-fit",
+    "gs-cpu-equi-each": "gs-cpu-equi-fit",
+    "cpu-equi-no-depth": "cpu-equi",
+    "cpu-densenet121-s8": "cpu-small",
+    "cpu-resnet101-s8": "cpu-small",
+    "gs-resnet101": "gs-thesis",
+    "gs-no-slide-reward": "gs-thesis",
+    "gs-double-dqn": "gs-thesis",
+}
+#: Characters of a run's ``name`` (it names a folder).
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
 
 
 @dataclass(frozen=True)
 class ClutterConfig(RunConfig):
     """Everything a clutter-grasping DQN run depends on; saved as ``config.json`` in the run folder.
 
-    The defaults are the ``cpu-small`` preset; :func:`presets` holds the overrides of each preset.
+    The defaults are the ``cpu-small`` preset; :func:`presets` holds the overrides of each preset. Where the values
+    come from is recorded in two fields: ``preset``, the preset they started from (always one of :func:`presets`), and
+    ``name``, the recipe's own name where it is not the preset's (e.g. a config file of ``docs/configs/``). The run
+    folder is ``<name or preset>_<backbone>_r<rotations>_px<size>_seed<seed>``. A config recorded before its preset
+    became a config file (``preset: gs-cpu-equi-each``) is read as ``preset`` = the file's base and ``name`` = the old
+    preset (:data:`RETIRED_PRESETS`): the same values and the same run folder.
     """
 
     preset: str = "cpu-small"
-    """Name of the preset these values started from (part of the run name)."""
+    """The preset the values start from (each listed with one line at the end of `train-clutter --help`); the run
+    name starts with it unless ``name`` is set."""
+    name: str | None = None
+    """Name of the recipe, the first part of the run name (None: the preset's); a config file of docs/configs/ sets
+    it to the file's name, so that its runs keep the folder names they had as a preset."""
     task: str = "grasp"
     """"grasp": one grasp FCN on ClutterGrasp-v1; "grasp_slide": the G&S agent (3 FCNs) on ClutterGraspSlide-v1."""
     loss: str = "dqn"
@@ -192,12 +224,17 @@ class ClutterConfig(RunConfig):
     resume: bool = False
     """Continue from the run folder's checkpoint.pt (its architecture fields must match this config)."""
     out: Path = Path("runs/clutter")
-    """Parent folder of the run folder ``<preset>_<backbone>_r<rotations>_px<size>_seed<seed>``."""
+    """Parent folder of the run folder ``<name or preset>_<backbone>_r<rotations>_px<size>_seed<seed>``."""
 
     def __post_init__(self):
         object.__setattr__(self, "out", Path(self.out))
+        if self.preset in RETIRED_PRESETS:  # recorded before it became a config file: its base, and its name
+            object.__setattr__(self, "name", self.name or self.preset)
+            object.__setattr__(self, "preset", RETIRED_PRESETS[self.preset])
         if self.preset not in presets():
             raise ValueError(f"unknown preset {self.preset!r}; valid: {list(presets())}")
+        if self.name is not None and not _NAME.fullmatch(self.name):
+            raise ValueError(f"name must be letters, digits and ._+- (it names the run folder), got {self.name!r}")
         for name, valid in CHOICES.items():
             if getattr(self, name) not in valid:
                 raise ValueError(f"unknown {name.replace('_', ' ')} {getattr(self, name)!r}; valid: {list(valid)}")
@@ -247,16 +284,58 @@ class ClutterConfig(RunConfig):
             raise ValueError(f"episodes and max_minutes must be >= 0, got {self.episodes}, {self.max_minutes}")
 
     @classmethod
-    def from_preset(cls, name: str, **overrides) -> ClutterConfig:
-        """The preset ``name`` (see :func:`presets`) with ``overrides`` applied."""
+    def from_preset(cls, preset: str, /, **overrides) -> ClutterConfig:
+        """The preset ``preset`` (see :func:`presets`) with ``overrides`` (fields, ``name`` among them) applied."""
         all_presets = presets()
-        if name not in all_presets:
-            raise ValueError(f"unknown preset {name!r}; valid: {list(all_presets)}")
-        return cls(**{**all_presets[name], **overrides, "preset": name})
+        if preset in RETIRED_PRESETS:
+            raise ValueError(f"preset {preset!r} is now a config file: train-clutter --config docs/configs/{preset}.yaml "
+                             f"(ClutterConfig.from_file); presets: {list(all_presets)}")
+        if preset not in all_presets:
+            raise ValueError(f"unknown preset {preset!r}; valid: {list(all_presets)}")
+        return cls(**{**all_presets[preset], **overrides, "preset": preset})
+
+    @classmethod
+    def values_from_file(cls, path: str | os.PathLike) -> dict:
+        """The field values of a YAML or JSON config file, checked against the fields (names and types) but not yet
+        a config; ValueError naming the file and the problem.
+
+        A file gives any fields; missing ones come from its base, the preset it names as ``preset`` (default
+        cpu-small), whose values lie under the file's (:meth:`from_file`, ``train-clutter --config``). A recipe of its
+        own sets ``name``, the first part of its run folders' name; e.g. ``docs/configs/gs-cpu-equi-each.yaml``::
+
+            preset: gs-cpu-equi-fit
+            name: gs-cpu-equi-each
+            loss_cost: 1.0
+            ...
+
+        trains what the preset ``gs-cpu-equi-each`` did, in ``gs-cpu-equi-each_equivariant_r16_px64_seed0``, and its
+        ``config.json`` records ``preset: gs-cpu-equi-fit``, ``name: gs-cpu-equi-each``. A file written before a
+        preset was retired (a run's ``config.json`` with ``preset: gs-cpu-equi-each``) reads as that: ``preset`` its
+        base, ``name`` the old preset (:data:`RETIRED_PRESETS`).
+        """
+        values = super().values_from_file(path)
+        if values.get("preset") in RETIRED_PRESETS:
+            values["name"] = values.get("name") or values["preset"]
+            values["preset"] = RETIRED_PRESETS[values["preset"]]
+        return values
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike, **overrides) -> ClutterConfig:
+        """The config of a YAML or JSON file (see :meth:`values_from_file`): its base preset's values, then the
+        file's, then ``overrides`` (a ``preset`` among them replaces the file's base); what ``train-clutter --config``
+        trains."""
+        values = cls.values_from_file(path)
+        preset = overrides.pop("preset", None) or values.pop("preset", "cpu-small")
+        values.pop("preset", None)
+        try:
+            cls._check_values(overrides)
+            return cls.from_preset(preset, **{**values, **overrides})
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"config file {path}: {e}") from e
 
     @property
     def run_name(self) -> str:
-        return f"{self.preset}_{self.backbone}_r{self.num_rotations}_px{self.heightmap_size}_seed{self.seed}"
+        return f"{self.name or self.preset}_{self.backbone}_r{self.num_rotations}_px{self.heightmap_size}_seed{self.seed}"
 
     @property
     def env_id(self) -> str:
@@ -275,24 +354,42 @@ class ClutterConfig(RunConfig):
 
 
 @functools.cache
-def _read_presets() -> dict[str, dict]:
+def _read_presets() -> tuple[dict[str, dict], dict[str, str]]:
     import yaml
 
-    presets = yaml.safe_load(PRESETS_FILE.read_text())
-    if not isinstance(presets, dict):
+    entries = yaml.safe_load(PRESETS_FILE.read_text())
+    if not isinstance(entries, dict):
         raise ValueError(f"{PRESETS_FILE} must map preset names to their fields")
-    for name, values in presets.items():
+    fields, descriptions = {}, {}
+    for name, values in entries.items():
+        values = dict(values or {})
+        description = values.pop("description", None)
         try:
-            ClutterConfig._check_values(values or {})
+            if not isinstance(description, str) or not description.strip() or "\n" in description.strip():
+                raise ValueError(f"needs a one-line description, got {description!r}")
+            if name in RETIRED_PRESETS:
+                raise ValueError("is a retired preset's name (RETIRED_PRESETS)")
+            if {"preset", "name"} & set(values):
+                raise ValueError("a preset sets neither 'preset' nor 'name'")
+            ClutterConfig._check_values(values)
         except ValueError as e:
             raise ValueError(f"{PRESETS_FILE}, preset {name!r}: {e}") from e
-    return {name: dict(values or {}) for name, values in presets.items()}
+        fields[name], descriptions[name] = values, description.strip()
+    return fields, descriptions
 
 
 def presets() -> dict[str, dict]:
     """Every preset: its name -> the fields it sets (a fresh copy of what ``presets.yaml`` holds, checked against the
     fields' names and types)."""
-    return {name: dict(values) for name, values in _read_presets().items()}
+    return {name: dict(values) for name, values in _read_presets()[0].items()}
 
 
-__all__ = ["ARCHITECTURE_FIELDS", "CHOICES", "ClutterConfig", "LOSSES", "OPTIMIZERS", "PRESETS_FILE", "TASKS", "presets"]
+def preset_descriptions() -> dict[str, str]:
+    """Every preset: its name -> its one-line description (the help ``train-clutter --help`` lists)."""
+    return dict(_read_presets()[1])
+
+
+__all__ = [
+    "ARCHITECTURE_FIELDS", "CHOICES", "ClutterConfig", "LOSSES", "OPTIMIZERS", "PRESETS_FILE", "RETIRED_PRESETS", "TASKS",
+    "preset_descriptions", "presets",
+]

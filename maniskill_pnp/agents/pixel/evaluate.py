@@ -67,14 +67,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file
+from maniskill_pnp.agents.pixel.decision_strip import decisions_strip, describe, outcome_lines, strip_rows
+from maniskill_pnp.agents.pixel.eval_figures import plot_scenario_metrics
 from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_policy, make_env, scenario_layout_files
 from maniskill_pnp.agents.pixel.fcn import rotation_angles
 from maniskill_pnp.agents.pixel.metrics import is_grasp_attempt
 from maniskill_pnp.agents.pixel.policy import FIT_KEY, GreedyPixelActor
 from maniskill_pnp.agents.run_io import atomic_write_bytes, write_json
+from maniskill_pnp.progress import progress_bar
 from maniskill_pnp.runtime import resolve_device
 from maniskill_pnp.cell.pixel_action import PixelActionLayout
 from maniskill_pnp.scenes.scene_file import read_scene
@@ -89,18 +91,21 @@ METRICS = ("success_rate", "grasp_success", "completion", "action_efficiency")
 #: :data:`~maniskill_pnp.tasks.LOSS_CAUSES`): slide, grasp of another object, dropped in transit,
 #: lost at release.
 LOSS_CAUSE_KEYS = tuple(LOSS_CAUSES)
-EPISODE_COLUMNS = ("scenario", "seed", "objects", "dropped_out", "actions", "grasp_attempts", "grasps", "placed", "lost",
+EPISODE_COLUMNS = ("scenario", "seed", "objects", "dropped_out", "actions", "grasp_attempts", "grasps", "placed", "slides",
+                   "futile_slides", "lost",
                    *LOSS_CAUSE_KEYS, "cleared", "completed", "max_failure_run", "success_rate", "grasp_success", "faults",
                    "layout")
 #: Extra per-scenario columns: the share of episodes whose workspace was emptied (into the bin or not), the objects
-#: lost (pushed or dropped out of the workspace) per scene, and per scene by cause.
-EXTRA_COLUMNS = ("workspace_cleared", "lost_per_scene", *(f"{k}_per_scene" for k in LOSS_CAUSE_KEYS))
+#: lost (pushed or dropped out of the workspace) per scene, and per scene by cause, the slides per scene and those
+#: of them that changed nothing.
+EXTRA_COLUMNS = ("workspace_cleared", "lost_per_scene", *(f"{k}_per_scene" for k in LOSS_CAUSE_KEYS), "slides_per_scene",
+                 "futile_slides_per_scene")
 #: Columns of the per-scenario table (Table IX).
 SCENARIO_COLUMNS = ("scenario", "episodes", *METRICS, *(f"{m}_se" for m in METRICS), *EXTRA_COLUMNS, "faults_per_100_actions")
 #: Columns of ``eval_table.md``: each metric is shown as "value ± standard error"; the lost objects per scene by
 #: cause as "slide / grasp / transit / release".
 TABLE_HEADER = ("scenario", "episodes", *METRICS, "workspace cleared", "lost / scene",
-                "lost by slide / grasp / transit / release", "faults / 100 actions")
+                "lost by slide / grasp / transit / release", "slides / scene (changed nothing)", "faults / 100 actions")
 
 
 @dataclass(frozen=True)
@@ -150,6 +155,9 @@ class ClutterEvalConfig:
     """Folder for eval_summary.json, eval_table.md/.csv and q_heatmaps.png."""
     device: str = "auto"
     """Torch device of the Q network ("auto": CUDA when available, else CPU); the simulation stays on the CPU."""
+    strips: int = 0
+    """Draw the decisions of this many worst episodes per scenario (not completed first, then most objects lost,
+    longest failure run, lowest success rate; perfect episodes never) as strips/<scenario>_seed<seed>.png."""
 
     def __post_init__(self):
         object.__setattr__(self, "checkpoint", Path(self.checkpoint))
@@ -178,6 +186,8 @@ class ClutterEvalConfig:
             raise ValueError(f"actions_per_object must be > 0 (or None for no cap), got {self.actions_per_object}")
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.strips < 0:
+            raise ValueError(f"strips must be >= 0, got {self.strips}")
         if self.guard_force is not None and not self.guard_force > 0:
             raise ValueError(f"guard_force must be a positive force in N (or None: unguarded), got {self.guard_force}")
         if self.device != "auto":
@@ -242,6 +252,8 @@ def summarize(episodes: list[dict]) -> dict:
         workspace_cleared=statistics.mean(float(bool(e["cleared"])) for e in episodes),
         lost_per_scene=statistics.mean(e["lost"] for e in episodes),
         **{f"{k}_per_scene": statistics.mean(int(e.get(k, 0)) for e in episodes) for k in LOSS_CAUSE_KEYS},
+        slides_per_scene=statistics.mean(int(e.get("slides", 0)) for e in episodes),
+        futile_slides_per_scene=statistics.mean(int(e.get("futile_slides", 0)) for e in episodes),
         faults_per_100_actions=100.0 * sum(e.get("faults", 0) for e in episodes) / actions if actions else 0.0,
     )
 
@@ -325,6 +337,9 @@ class EpisodeTally:
     grasp_attempts: int = 0
     grasps: int = 0
     placed: int = 0
+    slides: int = 0
+    futile_slides: int = 0
+    """Slides that changed nothing (``info["slide_changed"]`` false)."""
     faults: int = 0
     max_failure_run: int = 0
     lost: dict = field(default_factory=lambda: dict.fromkeys(LOSS_CAUSE_KEYS, 0))
@@ -335,6 +350,10 @@ class EpisodeTally:
         for key in LOSS_CAUSE_KEYS:
             self.lost[key] += int(info[key])
         self.actions += 1
+        primitive = self.primitives[int(info["primitive_index"])]
+        if primitive != "grasp":
+            self.slides += 1
+            self.futile_slides += int(not bool(info["slide_changed"]))
         self.grasp_attempts += int(is_grasp_attempt(self.primitives, int(info["primitive_index"])))
         self.grasps += int(info["grasp_success"])
         self.placed += int(info["placed_objects"])
@@ -344,7 +363,8 @@ class EpisodeTally:
 
 def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, max_steps: int | None,
                 on_step=None, scenario: str = "train", avoid_repeats: bool = False, layout_index: int | None = None,
-                layout: str = "", actions_per_object: float | None = None) -> tuple[dict, dict]:
+                layout: str = "", actions_per_object: float | None = None,
+                drawn: list | None = None) -> tuple[dict, dict]:
     """One greedy episode of the gymnasium env ``env`` from ``reset(seed=seed)``.
 
     Args:
@@ -354,6 +374,8 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
             choice.
         layout: The record's ``layout`` (the name of that layout).
         actions_per_object: Also cap the actions at this many per object of the scene.
+        drawn: A list to append every decision to, drawn for a strip (:func:`~maniskill_pnp.agents.pixel.decision_strip.describe`
+            plus its outcome); None: nothing is drawn.
 
     Returns:
         The episode record (``EPISODE_COLUMNS``) and the first decision: ``{"color", "depth", "maps", "action"}``.
@@ -374,8 +396,14 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         if first is None:
             first = dict(color=obs["color_heightmap"][0].cpu().numpy(), depth=obs["depth_heightmap"][0].cpu().numpy(),
                          maps=maps.numpy(), action=action)
-        obs, _, terminated, truncated, info = env.step(action)
+        decision = None if drawn is None else describe(env, action, maps.numpy(), obs, tally.actions)
+        obs, reward, terminated, truncated, info = env.step(action)
         tally.add(info)
+        if decision is not None:
+            primitive = decision["primitive"]
+            decision.update(outcome_lines=outcome_lines(info, float(reward.item()), primitive),
+                            failed=int(info["consecutive_failures"]) > 0, lost=sum(int(info[k]) for k in LOSS_CAUSE_KEYS))
+            drawn.append(decision)
         if int(info["consecutive_failures"]) > 0:
             failed.append(action)
         else:
@@ -388,7 +416,8 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         scenario=scenario, seed=seed, objects=objects, dropped_out=dropped_out, actions=t.actions,
         grasp_attempts=t.grasp_attempts, grasps=t.grasps, placed=t.placed, lost=int(info["lost_objects"]) - dropped_out,
         **t.lost, cleared=bool(info["success"].item()),
-        max_failure_run=t.max_failure_run, success_rate=t.placed / t.actions,
+        max_failure_run=t.max_failure_run, success_rate=t.placed / t.actions, slides=t.slides,
+        futile_slides=t.futile_slides,
         completed=False,
         grasp_success=t.grasps / t.grasp_attempts if t.grasp_attempts else 0.0, faults=t.faults, layout=layout,
     )
@@ -464,6 +493,7 @@ def write_tables(rows: list[dict], episodes: list[dict], out: Path) -> tuple[Pat
     md += ["| " + " | ".join([r["scenario"], str(r["episodes"]), *(f"{r[k]:.1%} ± {r[f'{k}_se']:.1%}" for k in METRICS),
                               f"{r['workspace_cleared']:.1%}", f"{r['lost_per_scene']:.2f}",
                               " / ".join(f"{r[f'{k}_per_scene']:.2f}" for k in LOSS_CAUSE_KEYS),
+                              f"{r['slides_per_scene']:.2f} ({r['futile_slides_per_scene']:.2f})",
                               f"{r['faults_per_100_actions']:.2f}"]) + " |" for r in rows]
     md_path, csv_path, ep_path = out / "eval_table.md", out / "eval_table.csv", out / "eval_episodes.csv"
     atomic_write_bytes(md_path, lambda f: f.write(("\n".join(md) + "\n").encode()))
@@ -473,13 +503,27 @@ def write_tables(rows: list[dict], episodes: list[dict], out: Path) -> tuple[Pat
 
 
 # ----------------------------------------------------------------------------- main
-def run(cfg: ClutterEvalConfig) -> dict:
-    """Evaluate the checkpoint greedily on every scenario; write the JSON summary, the tables and the Q-map figure
-    into ``cfg.out``.
+def worst_first(record: dict) -> tuple:
+    """Sort key of episode records, the worst first: not completed, then most objects lost, longest run of
+    failures, lowest success rate."""
+    return (is_completed(record), -int(record["lost"]), -int(record["max_failure_run"]), float(record["success_rate"]))
+
+
+def _is_perfect(record: dict) -> bool:
+    return is_completed(record) and record["lost"] == 0 and record["placed"] >= record["actions"]
+
+
+def run(cfg: ClutterEvalConfig, on_episode=None, progress: bool = True) -> dict:
+    """Evaluate the checkpoint greedily on every scenario; write the JSON summary, the tables, the Q-map figure, the
+    per-scenario metrics figure and the strips of the worst episodes (``cfg.strips``) into ``cfg.out``.
+
+    Args:
+        on_episode: Called with each episode's record as it ends (a caller's progress hook).
+        progress: Show a progress bar (:func:`~maniskill_pnp.progress.progress_bar`).
 
     Returns:
         The summary written to ``eval_summary.json``: ``metrics`` (per scenario), ``episodes`` (per-episode
-        records), ``files``, the configs, ``wall_s``.
+        records), ``files``, ``strips`` (the worst episodes' decision strips), the configs, ``wall_s``.
 
     Raises:
         FileNotFoundError: the checkpoint does not exist.
@@ -503,7 +547,9 @@ def run(cfg: ClutterEvalConfig) -> dict:
     if cfg.layout_file:
         plans.append((cfg.layout_scenario, dict(scenario="train", layout_file=[str(p) for p in cfg.layout_file]),
                       [p.stem for p in cfg.layout_file]))
-    with tqdm(total=cfg.episodes * len(plans), desc=f"eval {train_cfg.run_name}", unit="episode") as bar:
+    strips: list[Path] = []
+    with progress_bar(total=cfg.episodes * len(plans), desc=f"eval {train_cfg.run_name}", unit="episode",
+                      disable=not progress) as bar:
 
         def on_step(info):
             if is_grasp_attempt(primitives, int(info["primitive_index"])):
@@ -515,17 +561,25 @@ def run(cfg: ClutterEvalConfig) -> dict:
             torchrl_env = make_env(env_cfg, guard_force=cfg.guard_force, **env_args)
             env = torchrl_env.maniskill_env  # the gymnasium env underneath: its per-step info holds the outcome
             try:
-                scenario_episodes = []
+                scenario_episodes, worst = [], []  # worst: (record, drawn decisions) of the worst cfg.strips so far
                 for i in range(cfg.episodes):
                     k = None if layouts is None else i % len(layouts)
+                    drawn = [] if cfg.strips else None
                     record, decision = run_episode(env, actor, cfg.seed + i, device, cfg.max_steps, on_step, scenario,
                                                    cfg.avoid_repeats, k, "" if k is None else layouts[k],
-                                                   cfg.actions_per_object)
+                                                   cfg.actions_per_object, drawn)
                     scenario_episodes.append(record)
                     first = first or decision
+                    if drawn and not _is_perfect(record):
+                        worst = sorted([*worst, (record, drawn)], key=lambda w: worst_first(w[0]))[: cfg.strips]
                     bar.update()
+                    if on_episode is not None:
+                        on_episode(record)
             finally:
                 torchrl_env.close()
+            for record, drawn in worst:
+                name = f"{scenario}_seed{record['seed']}" + (f"_{record['layout']}" if record["layout"] else "")
+                strips.append(decisions_strip(strip_rows(drawn), train_cfg.heightmap_size, cfg.out / "strips" / f"{name}.png"))
             episodes += scenario_episodes
             rows.append(dict(scenario=scenario, episodes=len(scenario_episodes), **summarize(scenario_episodes)))
     wall = time.perf_counter() - t0
@@ -535,6 +589,7 @@ def run(cfg: ClutterEvalConfig) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     md_path, csv_path, ep_path = write_tables(rows, episodes, out)
     png_path = plot_q_heatmaps(first, primitives, out / "q_heatmaps.png")
+    metrics_png = plot_scenario_metrics({train_cfg.run_name: rows}, out / "eval_metrics.png")
     json_path = out / "eval_summary.json"
     metrics = {r["scenario"]: {k: v for k, v in r.items() if k not in ("scenario", "episodes")} for r in rows}
     summary = dict(
@@ -542,11 +597,12 @@ def run(cfg: ClutterEvalConfig) -> dict:
         eval_config=cfg.to_json(), train_config=train_cfg.to_json(), train_counters=counters,
         action_mask=None if actor.action_mask is None else dataclasses.asdict(actor.action_mask),
         files=dict(summary=str(json_path), table_md=str(md_path), table_csv=str(csv_path), episodes_csv=str(ep_path),
-                   q_heatmaps=str(png_path)),
+                   q_heatmaps=str(png_path), metrics_png=str(metrics_png)),
+        strips=[str(p) for p in strips],
     )
     write_json(json_path, summary)
     return summary
 
 
-__all__ = ["ClutterEvalConfig", "EpisodeTally", "MAX_FAILURE_RUN", "METRICS", "SCENARIO_COLUMNS", "TABLE_HEADER", "comparison_table", "decide", "is_completed", "paired_differences",
+__all__ = ["ClutterEvalConfig", "EpisodeTally", "MAX_FAILURE_RUN", "METRICS", "SCENARIO_COLUMNS", "TABLE_HEADER", "comparison_table", "decide", "is_completed", "paired_differences", "worst_first",
            "plot_q_heatmaps", "run", "run_episode", "scene_values", "standard_error", "summarize", "write_tables"]

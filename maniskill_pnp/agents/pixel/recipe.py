@@ -44,7 +44,6 @@ from functools import partial
 
 import torch
 from torchrl.objectives import HardUpdate
-from tqdm import tqdm
 
 from maniskill_pnp.agents.collection import make_collector, resolve_backend, seed_process, sync_weights, worker_seeds
 from maniskill_pnp.agents.pixel.checkpoint import load_checkpoint, restore, write_checkpoint
@@ -54,6 +53,7 @@ from maniskill_pnp.agents.pixel.loss import PixelBCELoss, PixelDQNLoss
 from maniskill_pnp.agents.pixel.metrics import OutcomeTracker, log_episodes, log_scalars
 from maniskill_pnp.agents.pixel.replay import make_pixel_replay, pack_transition, to_transitions, unpack_transition
 from maniskill_pnp.agents.run_io import make_logger, require_logger, write_json
+from maniskill_pnp.progress import progress_bar
 
 
 def main(cfg: ClutterConfig) -> dict:
@@ -231,7 +231,7 @@ class Monitor:
         self.tracker = OutcomeTracker(primitives, cfg.success_window, log_path=cfg.run_dir / "actions.csv",
                                       start_step=counters["steps"])
         self.logger = make_logger(cfg.run_dir, cfg.logger)
-        self.bar = tqdm(total=cfg.steps, initial=counters["steps"], desc=f"{cfg.task} {cfg.run_name}", unit="action")
+        self.bar = progress_bar(total=cfg.steps, initial=counters["steps"], desc=f"{cfg.task} {cfg.run_name}", unit="action")
 
     def record(self, batch, counters: dict) -> None:
         """Record a collector batch (metrics, ``actions.csv``, finished episodes) and count it into ``counters``."""

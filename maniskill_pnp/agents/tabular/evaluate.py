@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
-from tqdm import tqdm
 
 from maniskill_pnp.agents.run_io import atomic_write_bytes
 from maniskill_pnp.agents.tabular.qtable import QTable, make_qtable_policy
 from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, load_qtable, make_env, qtable_file
+from maniskill_pnp.progress import progress_bar
 from maniskill_pnp.tasks.conveyor import ConveyorProximityEnv
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, SPEEDS
 
@@ -184,8 +184,8 @@ def plot_curves(run_dirs: list[Path], out: Path) -> list[Path]:
 
     runs = []
     for d in run_dirs:
-        cfg = ConveyorConfig.from_json(json.loads((Path(d) / "config.json").read_text()))
-        try:
+        try:  # a Q-table outside its run folder has no config or training log to plot
+            cfg = ConveyorConfig.from_json(json.loads((Path(d) / "config.json").read_text()))
             runs.append((cfg, *read_curve(d)))
         except FileNotFoundError:
             continue
@@ -234,7 +234,7 @@ def run(cfg: EvalConfig) -> dict:
         runner = GreedyRunner(table, train_cfg, cfg.seed)
         res = dict(checkpoint=str(path), config=train_cfg.to_json(), test_cases={}, categories={})
         total = len(TEST_CASES) * cfg.iterations + len(OBJECT_KINDS) * len(ALIGNMENTS) * len(SPEEDS) * cfg.category_iterations
-        with tqdm(total=total, desc=f"eval {label}", unit="ep") as bar:
+        with progress_bar(total=total, desc=f"eval {label}", unit="ep") as bar:
             for case, draws in cases.items():
                 eps = []
                 for d in draws:

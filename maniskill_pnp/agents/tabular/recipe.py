@@ -28,13 +28,13 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import TransformedEnv
 from torchrl.envs.transforms import ActionMask
-from tqdm import tqdm
 
 from maniskill_pnp.agents.collection import check_collection, make_collector, resolve_backend, streams, sync_weights, worker_seeds
 from maniskill_pnp.agents.run_io import (
     RunConfig, atomic_write_bytes, check_logger, make_logger, require_logger, require_positive, write_json,
 )
 from maniskill_pnp.agents.tabular.qtable import ALGORITHMS, QTable, bootstrap_for, make_qtable_policy, td_update
+from maniskill_pnp.progress import progress_bar
 from maniskill_pnp.tasks.conveyor_config import ALIGNMENTS, OBJECT_KINDS, PHASES, REWARD_SCHEMES, SPEEDS, ConveyorSpec
 
 ENV_ID = "ConveyorProximity-v1"
@@ -318,7 +318,7 @@ def main(cfg: ConveyorConfig) -> dict:
     tally = EpisodeTally(cfg.success_window)
     next_log = cfg.log_interval
     t0 = time.perf_counter()
-    bar = tqdm(total=cfg.steps, desc=f"{cfg.algorithm} {cfg.reward_scheme}", unit="step")
+    bar = progress_bar(total=cfg.steps, desc=f"{cfg.algorithm} {cfg.reward_scheme}", unit="step")
     for batch in collector:
         # collect: a few frames of every worker, as one flat batch of transitions
         batch = batch.reshape(-1)
