@@ -280,7 +280,7 @@ def _compare_clutter(args) -> None:
     from maniskill_pnp.agents.pixel.evaluate import comparison_table
 
     try:
-        table = comparison_table(args.eval_a, args.eval_b)
+        table = comparison_table(args.eval_a, args.eval_b, plot=args.plot)
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"compare-clutter: {e}") from e
     print(table)
@@ -555,6 +555,7 @@ def build_parser() -> argparse.ArgumentParser:
     cmp.add_argument("eval_a", type=Path, help="eval-clutter output folder (or its eval_summary.json) of A")
     cmp.add_argument("eval_b", type=Path, help="eval-clutter output folder (or its eval_summary.json) of B")
     cmp.add_argument("--out", type=Path, default=None, help="also write the Markdown table to this file")
+    cmp.add_argument("--plot", type=Path, default=None, help="also draw the differences per scenario (± 2 SE) as this PNG")
     cmp.set_defaults(func=_compare_clutter)
 
     rec = sub.add_parser("record-clutter", help="film one greedy episode of a clutter DQN checkpoint: MP4 of the arm's "

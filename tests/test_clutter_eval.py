@@ -96,8 +96,10 @@ def test_paired_differences_match_scenes_and_the_comparison_command(tmp_path, ca
         (tmp_path / name / "eval_summary.json").write_text(json.dumps(dict(episodes=episodes)))
     table = comparison_table(tmp_path / "a", tmp_path / "b")
     assert "| medium | 2 | +37.5 ± 12.5 |" in table
-    cli(["compare-clutter", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "cmp.md")])
+    cli(["compare-clutter", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "cmp.md"),
+         "--plot", str(tmp_path / "cmp.png")])
     assert "| medium | 2 |" in capsys.readouterr().out and (tmp_path / "cmp.md").read_text().strip() == table
+    assert (tmp_path / "cmp.png").stat().st_size > 5_000
     with pytest.raises(SystemExit, match="compare-clutter: .*nowhere"):
         cli(["compare-clutter", str(tmp_path / "a"), str(tmp_path / "nowhere")])
 
@@ -130,8 +132,14 @@ def test_grasp_slide_table_ix_over_scenarios_and_grasp_only(tmp_path):
                                     checkpoint_interval=2, log_interval=1, collector="direct", out=tmp_path)
     train(cfg)
     both = run(ClutterEvalConfig(checkpoint=cfg.run_dir, episodes=1, max_steps=2,
-                                 scenarios=("2", "complicated", "hard_unseen"), out=tmp_path / "gs"))
+                                 scenarios=("2", "complicated", "hard_unseen"), out=tmp_path / "gs", strips=1))
     assert list(both["metrics"]) == ["2", "complicated", "hard_unseen"]
+    for e in both["episodes"]:  # every action a grasp or a slide; slides that changed nothing among the slides
+        assert e["slides"] <= e["actions"] and 0 <= e["futile_slides"] <= e["slides"]
+    # a strip per scenario whose episode was not perfect (2 actions cannot clear a locking layout): one row a decision
+    assert any("complicated" in p.rsplit("/", 1)[-1] for p in both["strips"])
+    for path in both["strips"]:
+        assert matplotlib.image.imread(path).shape[0] >= 256
     rows = (tmp_path / "gs" / "eval_table.md").read_text().splitlines()
     assert rows[0].startswith("| scenario | episodes | success_rate") and len(rows) == 5
     assert [e["scenario"] for e in both["episodes"]] == ["2", "complicated", "hard_unseen"]

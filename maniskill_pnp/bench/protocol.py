@@ -267,7 +267,9 @@ def run_job(job: Job, queue=None) -> dict:
                                     device="cpu", strips=job.strips)
             run(cfg, on_episode=tick, progress=False)
     wall = time.perf_counter() - t0
-    (job.folder / "done").write_text(json.dumps(dict(wall_s=wall)))
+    from maniskill_pnp.bench.protocol_report import git_revision
+
+    (job.folder / "done").write_text(json.dumps(dict(wall_s=wall, revision=git_revision())))
     return dict(label=job.label, part=job.part.name, wall_s=wall)
 
 

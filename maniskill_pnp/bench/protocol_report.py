@@ -23,12 +23,17 @@ METRIC_NAMES = {"success_rate": "success rate", "grasp_success": "grasp success"
                 "action_efficiency": "action efficiency"}
 
 
+def _done(job: Job) -> dict:
+    try:
+        return json.loads((job.folder / "done").read_text())
+    except (FileNotFoundError, ValueError):
+        return {}
+
+
 def part_wall_s(job: Job) -> float | None:
     """The wall time a finished part took (None when it has not finished)."""
-    try:
-        return float(json.loads((job.folder / "done").read_text())["wall_s"])
-    except (FileNotFoundError, KeyError, ValueError):
-        return None
+    wall = _done(job).get("wall_s")
+    return None if wall is None else float(wall)
 
 
 def _pct(value: float, se: float | None = None) -> str:
@@ -50,7 +55,8 @@ def _row(job: Job, summary: dict) -> dict:
     return dict(scenario=job.part.name, episodes=job.part.episodes, **metrics)
 
 
-def _git_revision() -> str:
+def git_revision() -> str:
+    """The package's git revision (short hash, marked when the work tree has uncommitted changes), else "unknown"."""
     try:
         out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True,
                              cwd=Path(__file__).resolve().parent)
@@ -101,11 +107,12 @@ def write_report(jobs: list[Job], cfg: BenchmarkConfig, failed: dict[str, str]) 
         by_agent.setdefault(job.label, []).append(job)
     machine = machine_info()
     walls = [w for w in (part_wall_s(j) for j in jobs) if w is not None]
+    revisions = sorted({str(_done(j).get("revision", "unknown")) for j in jobs if _done(j)})
     lines = [
         f"# Benchmark report ({'quick' if cfg.quick else 'full'} protocol)", "",
-        f"{datetime.date.today().isoformat()}; maniskill_pnp at {_git_revision()}; {machine['cpus']} CPUs, "
-        f"GPU {machine['gpu'] or 'none'}; torch {machine['versions']['torch']}, mani-skill {machine['versions']['mani-skill']}. "
-        f"Parts' wall time {sum(walls) / 60:.1f} min in all (side by side in worker processes).", "",
+        f"{datetime.date.today().isoformat()}; parts run by maniskill_pnp at {', '.join(revisions) or 'unknown'}; "
+        f"{machine['cpus']} CPUs, GPU {machine['gpu'] or 'none'}; torch {machine['versions']['torch']}, mani-skill "
+        f"{machine['versions']['mani-skill']}. The parts took {sum(walls) / 60:.1f} min of worker time.", "",
         "Metrics as defined in the package's `docs/metrics.md`; ± the standard error over scenes; paired differences "
         "in points, `*` beyond 2 SE. Scenes from seed 1000 on, at most 3 × objects actions each; the hard sets with "
         "grasps and slides guarded at 20 N. Repeat: `maniskill-pnp benchmark " + " ".join(str(a) for a in cfg.agents)
@@ -211,7 +218,8 @@ def _conveyor_section(jobs: list[Job]) -> list[str]:
                       "| test case | success rate | grasp success |", "|---|---|---|"]
             lines += [f"| {case} | {_pct(v['success_rate'], _binomial_se(v['success_rate'], v['episodes']))} | "
                       f"{_pct(v['grasp_success'])} |" for case, v in cases.items()]
-            lines += [f"| average | {_pct(res['test_case_average_success_rate'])} | |", ""]
+            mean, n = res["test_case_average_success_rate"], job.part.episodes * len(cases)
+            lines += [f"| average | {_pct(mean, _binomial_se(mean, n))} | |", ""]
     return lines
 
 

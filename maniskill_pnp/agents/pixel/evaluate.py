@@ -70,7 +70,7 @@ import torch
 
 from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file
 from maniskill_pnp.agents.pixel.decision_strip import decisions_strip, describe, outcome_lines, strip_rows
-from maniskill_pnp.agents.pixel.eval_figures import plot_scenario_metrics
+from maniskill_pnp.agents.pixel.eval_figures import plot_paired, plot_scenario_metrics
 from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_policy, make_env, scenario_layout_files
 from maniskill_pnp.agents.pixel.fcn import rotation_angles
 from maniskill_pnp.agents.pixel.metrics import is_grasp_attempt
@@ -282,10 +282,11 @@ def paired_differences(episodes_a: list[dict], episodes_b: list[dict]) -> dict[s
             for scenario, diffs in out.items()}
 
 
-def comparison_table(eval_a: Path, eval_b: Path) -> str:
+def comparison_table(eval_a: Path, eval_b: Path, plot: Path | None = None) -> str:
     """Markdown table of :func:`paired_differences` between two ``eval-clutter`` output folders (or their
     ``eval_summary.json``): per scenario, A - B of each metric in points, ± its standard error over the paired
-    scenes. FileNotFoundError / ValueError naming the folder for a missing or unreadable summary."""
+    scenes; with ``plot``, also the differences as a PNG (:func:`~maniskill_pnp.agents.pixel.eval_figures.plot_paired`).
+    FileNotFoundError / ValueError naming the folder for a missing or unreadable summary."""
     import json
 
     def episodes(path: Path) -> list[dict]:
@@ -299,6 +300,8 @@ def comparison_table(eval_a: Path, eval_b: Path) -> str:
             raise ValueError(f"{summary} is not an eval-clutter summary: {e}") from e
 
     diffs = paired_differences(episodes(eval_a), episodes(eval_b))
+    if plot is not None:
+        plot_paired({"A − B": diffs}, plot)
     lines = [f"A = {eval_a}, B = {eval_b}; paired per-scene differences A - B (points ± standard error)", "",
              "| scenario | scenes | " + " | ".join(METRICS) + " |", "|---" * (len(METRICS) + 2) + "|"]
     for scenario, d in diffs.items():
