@@ -7,9 +7,9 @@ greedily (argmax of the Q maps, no ε) over seeded scenes: episode ``i`` is rese
 An episode ends when the workspace is clear, when the task truncates it (too many consecutive failures or
 actions), after ``actions_per_object`` × its objects actions (3 by default) or after ``max_steps`` actions. The policy acts under the action mask its training used (grasps only where
 there is material, see :mod:`~maniskill_pnp.agents.pixel.mask`); ``grasp_only`` also masks out a G&S agent's
-slides, the thesis' grasp-only comparison on the same network. With ``avoid_repeats`` the policy never repeats an
-action that failed since the last success (pure argmax without it: a failure that leaves the scene unchanged leaves
-the argmax unchanged, so one failing action can repeat until the failure limit ends the episode).
+slides, the thesis' grasp-only comparison on the same network. With ``avoid_repeats`` the policy never repeats a
+failed action or its neighbours until the heightmap changes (pure argmax without it: a failure that leaves the scene
+unchanged leaves the argmax unchanged, so one failing action can repeat until the failure limit ends the episode).
 
 Scenarios (``scenarios``, one table row each, like the thesis' Table IX): ``"train"`` (the checkpoint's object
 count), an object count such as ``"10"``, a density preset of the task (``"min"``, ``"medium"``, ``"max"``) or
@@ -70,6 +70,7 @@ import torch
 
 from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file
 from maniskill_pnp.agents.pixel.decision_strip import decisions_strip, describe, outcome_lines, strip_rows
+from maniskill_pnp.agents.pixel.failure_memory import FailureMemory
 from maniskill_pnp.agents.pixel.eval_figures import plot_paired, plot_scenario_metrics
 from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_policy, make_env, scenario_layout_files
 from maniskill_pnp.agents.pixel.fcn import rotation_angles
@@ -144,9 +145,10 @@ class ClutterEvalConfig:
     """Test the grasp fit on a heightmap this many times finer than the network's (see ``ClutterConfig.mask_fit_scale``;
     needs the fit test); None: as the run was trained."""
     avoid_repeats: bool = False
-    """Never repeat an action that failed (a failed grasp, a slide that changed nothing) until the next success:
-    a failure that leaves the scene as it was leaves the greedy argmax where it was, so without this memory the
-    policy can repeat one failing action until the failure limit ends the episode."""
+    """Never repeat a failed action (a failed grasp, a slide that changed nothing), nor its neighbours (±2 px, ±1
+    rotation), until the heightmap changes (:class:`~maniskill_pnp.agents.pixel.failure_memory.FailureMemory`): a
+    failure that leaves the scene as it was leaves the greedy argmax where it was, so without this memory the policy
+    can repeat one failing action until the failure limit ends the episode."""
     guard_force: float | None = None
     """Guarded grasps and slides (N): a grasp's descent or a slide's lowering stops, and the action fails, when contacts
     push the gripper up by more than this, as a real arm's collision reflex would (e.g. 20); None: unguarded, as in
@@ -318,9 +320,9 @@ def decide(actor: GreedyPixelActor, obs: dict, device: torch.device, exclude: Co
     color, depth = obs["color_heightmap"].to(device), obs["depth_heightmap"].to(device)
     fit = obs.get(FIT_KEY)
     values, action, *mask = actor(color, depth, None if fit is None else fit.to(device))
-    if exclude:
+    if len(exclude):
         allowed = mask[0].reshape(-1).clone() if mask else torch.ones(values.numel(), dtype=torch.bool, device=values.device)
-        allowed[torch.as_tensor(list(exclude), device=values.device)] = False
+        allowed[torch.as_tensor(np.asarray(exclude, dtype=np.int64), device=values.device)] = False
         if allowed.any():
             action = values.reshape(-1).masked_fill(~allowed, float("-inf")).argmax()
     net = actor.q_network
@@ -372,7 +374,8 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
 
     Args:
         on_step: Called with the step's ``info`` after every action (the progress bar's hook).
-        avoid_repeats: Mask out the actions that failed since the last success (see :class:`ClutterEvalConfig`).
+        avoid_repeats: Mask out the failed actions of the unchanged scene and their neighbours (see
+            :class:`ClutterEvalConfig`).
         layout_index: The env's explicit layout to play (``reset(options={"layout_index": k})``); None: the env's own
             choice.
         layout: The record's ``layout`` (the name of that layout).
@@ -393,9 +396,9 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
     tally = EpisodeTally(env.unwrapped.primitive_names)
     first = None
     done = False
-    failed = []  # actions that failed since the last success
+    memory = FailureMemory(env.unwrapped.action_layout, env.unwrapped.primitive_names) if avoid_repeats else None
     while not done and (max_steps is None or tally.actions < max_steps):
-        action, maps = decide(actor, obs, device, exclude=failed if avoid_repeats else ())
+        action, maps = decide(actor, obs, device, exclude=() if memory is None else memory.excluded())
         if first is None:
             first = dict(color=obs["color_heightmap"][0].cpu().numpy(), depth=obs["depth_heightmap"][0].cpu().numpy(),
                          maps=maps.numpy(), action=action)
@@ -407,10 +410,8 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
             decision.update(outcome_lines=outcome_lines(info, float(reward.item()), primitive),
                             failed=int(info["consecutive_failures"]) > 0, lost=sum(int(info[k]) for k in LOSS_CAUSE_KEYS))
             drawn.append(decision)
-        if int(info["consecutive_failures"]) > 0:
-            failed.append(action)
-        else:
-            failed.clear()
+        if memory is not None:
+            memory.observe(action, int(info["consecutive_failures"]) > 0, obs["depth_heightmap"][0].cpu().numpy())
         done = bool(terminated.item() or truncated.item())
         if on_step is not None:
             on_step(info)
