@@ -9,6 +9,7 @@ the worst episodes with them (:func:`decisions_strip`: one row per decision), so
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -117,9 +118,8 @@ def outcome_lines(info: dict, reward: float, primitive: str) -> list[str]:
     if primitive != "grasp":
         lines.append(f"scene changed {bool(info['slide_changed'])}")
     lines.append(f"left {int(info['objects_remaining'])} objects")
-    reason = failure_reason(info)
-    if reason:
-        lines.append(reason[:34])
+    # the reason, wrapped to the outcome panel's width (34 characters), in at most 4 lines
+    lines += textwrap.wrap(failure_reason(info), 34, max_lines=4, placeholder="...")
     return lines
 
 
