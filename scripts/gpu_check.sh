@@ -51,8 +51,10 @@ step_cmd() {  # sets cmd to the command of step $1
         pytest-gpu) cmd=("$py" -m pytest -m gpu -q tests/ --timeout=60 "--junitxml=$out/pytest_gpu.xml") ;;
         batched-decisions) cmd=("$mp" bench batched-decisions --num-envs 1 4 16 64 --out "$out/bench") ;;
         pixel-memory) cmd=("$mp" bench pixel-memory --device cuda --repeats 3 --out "$out/bench") ;;
-        # The clutter recipe trains on the CPU (its config has no device), so this measures gs-thesis's CPU cost.
-        training-throughput) cmd=("$mp" bench training-throughput --variants gs-thesis --minutes 2 --repeats 1
+        # Learner and acting on the GPU (the in-process collector: a worker process would act on the CPU, seconds a
+        # DenseNet-121 decision); the turn's JSON names the device.
+        training-throughput) cmd=("$mp" bench training-throughput --variants gs-thesis,device=cuda,collector=direct
+                                  --minutes 2 --repeats 1
                                   --out "$out/bench") ;;
         *) echo "gpu_check.sh: no step $1" >&2; exit 70 ;;
     esac

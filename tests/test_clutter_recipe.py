@@ -225,6 +225,63 @@ def test_grasp_slide_bce_smoke_run(tmp_path):
     assert "target_value_network_params" not in str(list(ckpt["loss"]))  # BCE: no bootstrap, no target network
 
 
+def test_device_cpu_trains_what_auto_trains_without_a_gpu_and_resumes_under_another_device(tmp_path, monkeypatch):
+    """``--device cpu`` trains exactly what the default ``auto`` trains on a machine without a GPU (the same actions
+    and weights), train_summary.json names the device used, and a run resumes under another device setting (device
+    is no architecture field)."""
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)  # "auto" finds no GPU, on any machine
+    summaries = [_train(tmp_path / "auto", 2), _train(tmp_path / "cpu", 2, "--device", "cpu")]
+    assert [s["device"] for s in summaries] == ["cpu", "cpu"] and all(s["updates"] == 2 for s in summaries)
+    runs = [tmp_path / name / "cpu-small_small_r2_px32_seed0" for name in ("auto", "cpu")]
+    assert [json.loads((r / "config.json").read_text())["device"] for r in runs] == ["auto", "cpu"]
+    assert (runs[0] / "actions.csv").read_text() == (runs[1] / "actions.csv").read_text()
+    auto, cpu = (load_checkpoint(r) for r in runs)
+    for part in ("model", "loss"):
+        assert auto[part].keys() == cpu[part].keys()
+        assert all(torch.equal(auto[part][k], cpu[part][k]) for k in auto[part]), part
+    resumed = _train(tmp_path / "cpu", 3, "--resume", "--device", "auto")
+    assert resumed["start_step"] == 2 and resumed["steps"] == 3 and resumed["device"] == "cpu"
+
+
+def test_a_missing_gpu_is_a_clear_error_before_anything_is_built(tmp_path, monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(SystemExit, match="train-clutter: device 'cuda': CUDA is not available on this machine"):
+        _train(tmp_path, 2, "--device", "cuda")
+    with pytest.raises(SystemExit, match="train-clutter: device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got 'gpu'"):
+        _train(tmp_path, 2, "--device", "gpu")
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.gpu
+def test_cuda_learner_trains_and_its_checkpoint_loads_on_the_cpu(tmp_path):
+    """``device="cuda"``: the network, the target network and the optimizer state live on the GPU, while a worker
+    process acts with a CPU copy; resumed with the direct collector, the learner's own policy acts on the GPU; the
+    checkpoint loads on the CPU, as an actor and as a run resumed there."""
+    import dataclasses
+
+    from maniskill_pnp.agents.pixel.factories import load_policy
+    from maniskill_pnp.agents.pixel.recipe import main as train
+
+    cfg = ClutterConfig.from_preset("cpu-small", heightmap_size=32, num_rotations=2, num_objects=2, steps=2,
+                                    checkpoint_interval=1, log_interval=1, device="cuda", collector="process",
+                                    out=tmp_path)
+    first = train(cfg)
+    assert first["device"] == f"cuda:{torch.cuda.current_device()}" and first["updates"] == 2
+    raw = torch.load(cfg.run_dir / "checkpoint.pt", weights_only=True)  # each tensor on the device it was saved from
+    assert all(t.is_cuda for part in ("model", "loss") for t in raw[part].values())  # the target network among them
+    assert any("target_value_network_params" in k for k in raw["loss"])
+    assert raw["optimizer"]["state"] and all(s["momentum_buffer"].is_cuda for s in raw["optimizer"]["state"].values())
+
+    on_gpu = train(dataclasses.replace(cfg, steps=3, resume=True, collector="direct"))
+    assert on_gpu["start_step"] == 2 and on_gpu["steps"] == 3 and on_gpu["device"] == first["device"]
+    payload = load_checkpoint(cfg.run_dir)
+    assert all(t.device.type == "cpu" for part in ("model", "loss") for t in payload[part].values())
+    actor, _, counters = load_policy(cfg.run_dir / "checkpoint.pt", torch.device("cpu"))
+    assert counters["steps"] == 3 and {p.device.type for p in actor.parameters()} == {"cpu"}
+    on_cpu = train(dataclasses.replace(cfg, steps=4, resume=True, collector="direct", device="cpu"))
+    assert on_cpu["start_step"] == 3 and on_cpu["steps"] == 4 and on_cpu["device"] == "cpu"
+
+
 GS = ("grasp", "left_slide", "right_slide")
 
 

@@ -35,6 +35,7 @@ def test_yaml_values_override_defaults_and_round_trip(tmp_path):
     ("- 1\n- 2", "must be a mapping"),
     ("steps: 0", "steps must be >= 1"),
     ("backbone: vgg", "unknown backbone 'vgg'"),
+    ("device: gpu", "device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got 'gpu'"),
 ])
 def test_bad_files_name_the_file_and_the_problem(tmp_path, text, message):
     path = tmp_path / "bad.yaml"
@@ -42,6 +43,29 @@ def test_bad_files_name_the_file_and_the_problem(tmp_path, text, message):
     with pytest.raises(ValueError, match=message) as info:
         ClutterConfig.from_file(path)
     assert "bad.yaml" in str(info.value)
+
+
+def test_device_is_checked_and_a_config_written_before_it_loads():
+    """``device`` (where the learner runs) is checked by name, and is no architecture field: a config.json written
+    before the field existed loads with "auto"; a bench variant sets it like any field, checked before any training."""
+    import re
+
+    from maniskill_pnp.agents.pixel.config import ARCHITECTURE_FIELDS
+    from maniskill_pnp.bench.training_throughput import parse_variant
+
+    older = ClutterConfig.from_preset("gs-cpu-equi", seed=1).to_json()
+    del older["device"]
+    assert ClutterConfig.from_json(older) == ClutterConfig.from_preset("gs-cpu-equi", seed=1, device="auto")
+    assert "device" not in ARCHITECTURE_FIELDS
+    for good in ("auto", "cpu", "cuda", "cuda:1"):
+        assert ClutterConfig(device=good).device == good
+    expected = "device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got "
+    for bad in ("gpu", "CPU", "cuda:", "cuda:x", "mps", "", 0, None):
+        with pytest.raises(ValueError, match=re.escape(f"{expected}{bad!r}")):
+            ClutterConfig(device=bad)
+    assert parse_variant("gs-thesis,device=cuda") == ("gs-thesis", {"device": "cuda"})
+    with pytest.raises(ValueError, match="variant 'gs-thesis,device=gpu': device must be"):
+        parse_variant("gs-thesis,device=gpu")
 
 
 def test_missing_file_and_cli_errors(tmp_path):

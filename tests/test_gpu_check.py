@@ -97,7 +97,7 @@ def test_dry_run_names_commands_the_package_accepts(tmp_path, monkeypatch):
     assert configs.keys() == {"batched-decisions", "pixel-memory", "training-throughput"}
     assert configs["batched-decisions"].num_envs == (1, 4, 16, 64)
     assert configs["pixel-memory"].device == "cuda"
-    assert configs["training-throughput"].variants == ("gs-thesis",) and configs["training-throughput"].minutes == 2
+    assert configs["training-throughput"].variants == ("gs-thesis,device=cuda,collector=direct",) and configs["training-throughput"].minutes == 2
     assert all(cfg.out.parent == out / "bench" for cfg in configs.values())
 
 

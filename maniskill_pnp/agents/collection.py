@@ -15,11 +15,12 @@ Every worker builds its own env from a picklable ``make_env(seed)`` and seeds it
 ``random``) with its own seed from :func:`worker_seeds`, so workers draw different clutters and different ε-random
 actions; the recipes record the seeds in their ``train_summary.json``. With ``sync`` (the default) each batch
 holds ``frames_per_worker`` frames of every worker, stacked as rows; without it, each batch is one worker's frames
-as soon as they are ready (fresher data, less reproducible). The workers act with their own copy of the policy
-(TorchRL puts a process collector's policy in shared memory, which the workers read as they act); the learner copies
-its weights and buffers (the ε of the exploration module among them) into that copy with :func:`sync_weights`, so
-its updates reach the workers only then: between two synchronous batches, while the workers wait (without ``sync``
-the workers act on while it is written).
+as soon as they are ready (fresher data, less reproducible). The workers act with their own copy of the policy, on
+the CPU whatever device the learner's is on (TorchRL puts a process collector's policy in shared memory, which the
+workers read as they act); the learner copies its weights and buffers (the ε of the exploration module among them)
+into that copy with :func:`sync_weights`, so its updates reach the workers only then: between two synchronous
+batches, while the workers wait (without ``sync`` the workers act on while it is written). The direct backend acts
+with the learner's policy itself, on its device.
 
 A Ray run joins the cluster named by the ``RAY_ADDRESS`` environment variable (``ray.init``'s rule) or starts a
 local Ray instance; see the README's "Scaling out".
@@ -123,6 +124,7 @@ def make_collector(
     backend: str = "direct",
     sync: bool = True,
     env: EnvBase | None = None,
+    policy_device: torch.device | str | None = None,
 ) -> BaseCollector:
     """A TorchRL collector of ``policy`` (exploration on) over ``workers`` envs built by ``make_env(seed)``.
 
@@ -134,6 +136,9 @@ def make_collector(
         frames_per_worker: Frames each worker adds to a batch.
         workers, backend, sync: See the module docstring; checked by :func:`check_collection`.
         env: With the direct backend, an env already built (and seeded) by the caller; otherwise it is built here.
+        policy_device: With the direct backend, the device ``policy`` is wholly on (e.g. a CUDA learner's): each
+            observation is moved there to act, the action back to the env's device, where the batches stay. The
+            other backends act with a CPU copy of ``policy``, whatever its device.
     """
     check_collection(workers, backend, sync)
     backend = resolve_backend(backend, workers)
@@ -142,10 +147,17 @@ def make_collector(
         if env is None:
             env = make_env(seed)
             env.set_seed(seed)
-        return Collector(env, policy, frames_per_batch=frames_per_worker, auto_register_policy_transforms=False,
-                         **common)
+        devices = {}
+        if policy_device is not None and torch.device(policy_device) != env.device:
+            devices = dict(policy_device=torch.device(policy_device), env_device=env.device, storing_device=env.device)
+        collector = Collector(env, policy, frames_per_batch=frames_per_worker, auto_register_policy_transforms=False,
+                              **devices, **common)
+        if collector.policy is not policy:  # TorchRL acts with a copy of a policy that is not wholly on policy_device
+            raise RuntimeError(f"the direct collector must act with the learner's policy itself: move it wholly to "
+                               f"{policy_device} first")
+        return collector
     factories = [WorkerEnv(make_env, s) for s in worker_seeds(seed, workers)]
-    policy = copy.deepcopy(policy)  # the workers' copy; the learner's own tensors stay out of shared memory
+    policy = copy.deepcopy(policy).cpu()  # the workers' copy (CPU); the learner's tensors stay out of shared memory
     if backend == "process":
         collector = Collector(factories, policy, backend="process", sync=sync, frames_per_batch=frames_per_worker * workers,
                               cat_results="stack", auto_register_policy_transforms=False, **common)
@@ -167,8 +179,8 @@ def make_collector(
 
 
 def sync_weights(collector: BaseCollector, policy: torch.nn.Module) -> None:
-    """Copy the learner's ``policy`` weights and buffers (ε included) into the workers' copy; nothing to do for
-    ``direct``, which acts with ``policy`` itself.
+    """Copy the learner's ``policy`` weights and buffers (ε included) into the workers' copy, on the CPU (from a CUDA
+    learner too); nothing to do for ``direct``, which acts with ``policy`` itself.
 
     Process workers act with that copy's shared memory, so the copy is all they need: a synchronous collector's
     workers are idle between batches and read it when the next batch is asked for (TorchRL's own
@@ -177,7 +189,7 @@ def sync_weights(collector: BaseCollector, policy: torch.nn.Module) -> None:
     if type(collector) is Collector:
         return
     with torch.no_grad():
-        TensorDict.from_module(collector.policy).update_(TensorDict.from_module(policy))
+        TensorDict.from_module(collector.policy).update_(TensorDict.from_module(policy).apply(torch.Tensor.cpu))
     if not isinstance(collector, (MultiSyncCollector, MultiAsyncCollector)):
         collector.update_policy_weights_()
 

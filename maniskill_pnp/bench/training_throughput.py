@@ -2,7 +2,8 @@
 
 Each variant is a preset with optional field overrides, written ``PRESET[,FIELD=VALUE...]`` (values in YAML syntax),
 e.g. ``gs-cpu-equi,collector=direct`` (the simulator in the learner's process) against ``gs-cpu-equi`` (the default:
-the learner updating while a worker process steps the simulator). Every variant trains for real
+the learner updating while a worker process steps the simulator), or ``gs-thesis,device=cuda`` (the learner on the
+GPU; each turn records the device its learner used). Every variant trains for real
 (:func:`maniskill_pnp.agents.pixel.recipe.main`: env, ε-greedy actor, prioritized replay, ``updates_per_step`` SGD
 steps per action, checkpoints) for ``minutes`` of
 wall-clock time from its first action, in a scratch run folder; the variants take turns (A B A B ... with
@@ -44,6 +45,7 @@ def parse_variant(spec: str) -> tuple[str, dict]:
         overrides[name.strip().replace("-", "_")] = yaml.safe_load(value)
     try:
         ClutterConfig._check_values(overrides)
+        ClutterConfig.from_preset(preset, **overrides)  # the values too (e.g. a device), before any variant trains
     except ValueError as e:
         raise ValueError(f"variant {spec!r}: {e}") from e
     return preset, overrides
@@ -75,7 +77,7 @@ class TrainingThroughputBenchConfig:
 
 
 def run_variant(spec: str, cfg: TrainingThroughputBenchConfig, out: Path) -> dict:
-    """Train ``spec`` for ``cfg.minutes`` in ``out``; its actions, updates, rate and start-up time."""
+    """Train ``spec`` for ``cfg.minutes`` in ``out``; its learner's device, actions, updates, rate and start-up time."""
     from maniskill_pnp.agents.pixel.config import ClutterConfig
     from maniskill_pnp.agents.pixel.recipe import main
 
@@ -87,8 +89,8 @@ def run_variant(spec: str, cfg: TrainingThroughputBenchConfig, out: Path) -> dic
     summary = main(config)
     total = time.perf_counter() - t0
     actions, wall = summary["steps"], summary["wall_s"]
-    return dict(actions=actions, updates=summary["updates"], train_s=wall, startup_s=total - wall,
-                actions_per_hour=3600.0 * actions / wall, s_per_action=wall / max(actions, 1))
+    return dict(device=summary["device"], actions=actions, updates=summary["updates"], train_s=wall,
+                startup_s=total - wall, actions_per_hour=3600.0 * actions / wall, s_per_action=wall / max(actions, 1))
 
 
 def run(cfg: TrainingThroughputBenchConfig) -> dict:
@@ -102,7 +104,8 @@ def run(cfg: TrainingThroughputBenchConfig) -> dict:
             for i, spec in enumerate(cfg.variants):
                 result = run_variant(spec, cfg, Path(scratch) / f"turn{r}_variant{i}")
                 turns[spec].append(result)
-                print(f"  turn {r + 1}, {spec}: {result['actions']} actions in {result['train_s'] / 60:.1f} min "
+                print(f"  turn {r + 1}, {spec} on {result['device']}: {result['actions']} actions in "
+                      f"{result['train_s'] / 60:.1f} min "
                       f"({result['actions_per_hour']:.0f}/h, {result['s_per_action']:.2f} s/action, start-up "
                       f"{result['startup_s']:.0f} s)", flush=True)
     base = statistics.median(t["actions_per_hour"] for t in turns[cfg.variants[0]])

@@ -65,6 +65,8 @@ RETIRED_PRESETS = {
 }
 #: Characters of a run's ``name`` (it names a folder).
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
+#: The values of ``device``.
+_DEVICE = re.compile(r"auto|cpu|cuda(:[0-9]+)?")
 
 
 @dataclass(frozen=True)
@@ -211,6 +213,11 @@ class ClutterConfig(RunConfig):
     sync: bool = True
     """A batch waits for every worker (False: each worker's frames as soon as they are ready; the workers then act
     with weights that change under them, so a run no longer repeats from its seed)."""
+    device: str = "auto"
+    """Torch device of the learner: the Q networks, the target network, the optimizer and each sampled replay batch
+    ("auto": CUDA when available, else the CPU; or "cpu", "cuda", "cuda:N"). The simulation and the replay stay on the
+    CPU; worker processes act with a CPU copy of the networks, the direct collector on this device. Not an
+    architecture field: a run resumes on any device; train_summary.json records the device used."""
     checkpoint_interval: int = 50
     """Write the checkpoint atomically every this many steps (and at the end)."""
     log_interval: int = 10
@@ -239,6 +246,8 @@ class ClutterConfig(RunConfig):
             if getattr(self, name) not in valid:
                 raise ValueError(f"unknown {name.replace('_', ' ')} {getattr(self, name)!r}; valid: {list(valid)}")
         check_collection(self.workers, self.collector, self.sync)
+        if not isinstance(self.device, str) or not _DEVICE.fullmatch(self.device):
+            raise ValueError(f"device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got {self.device!r}")
         if self.task == "grasp" and self.reward_scheme != "default":
             raise ValueError(f"reward_scheme {self.reward_scheme!r} needs task 'grasp_slide' (ClutterGrasp-v1 has one scheme)")
         if self.loss == "bce" and (self.double_dqn or self.delay_value):

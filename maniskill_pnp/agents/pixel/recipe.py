@@ -19,6 +19,11 @@ counters, RNG states) and, with ``save_replay`` (the default), from the replay b
 transition at 64 px, 0.5 MB at 224 px). The checkpoint names the replay folder of its own step, written before
 it, so a crash between the two leaves the previous pair intact.
 
+The learner (network, target network, optimizer) runs on ``device`` ("auto": CUDA when available), each sampled
+batch moved there from the replay, which stays on the CPU with the simulation; the direct collector acts on that
+device too, worker processes with a CPU copy of the network. Checkpoints load onto the CPU, so a run resumes, and
+is evaluated, on any device.
+
 With ``mask_empty`` (the default) the actor and the bootstrap range over the actions that can touch something:
 grasps where the heightmap shows material, slides that start on bare table and meet material within half their
 length (:class:`~maniskill_pnp.agents.pixel.mask.HeightmapActionMask`).
@@ -54,11 +59,13 @@ from maniskill_pnp.agents.pixel.metrics import OutcomeTracker, log_episodes, log
 from maniskill_pnp.agents.pixel.replay import make_pixel_replay, pack_transition, to_transitions, unpack_transition
 from maniskill_pnp.agents.run_io import make_logger, require_logger, write_json
 from maniskill_pnp.progress import progress_bar
+from maniskill_pnp.runtime import resolve_device
 
 
 def main(cfg: ClutterConfig) -> dict:
     """Train one pixelwise DQN agent; returns a summary (run folder, steps, episodes, grasp success)."""
     require_logger(cfg.logger)  # a missing tensorboard extra fails before anything is built
+    device = learner_device(cfg.device)  # so does a missing GPU
     payload = resume_payload(cfg)
     counters = dict(steps=0, episodes=0, updates=0, grasps=0, faults=0)
     counters.update(payload["counters"] if payload else {})  # a checkpoint of an older version has no "faults"
@@ -72,19 +79,21 @@ def main(cfg: ClutterConfig) -> dict:
     env_seed = cfg.seed + counters["episodes"]
     env = make_env(cfg)
     env.set_seed(env_seed)
-    model = make_model(cfg)
+    model = make_model(cfg).to(device)
     _, explore, egreedy = make_policy(cfg, model, env.action_spec)
+    explore.to(device)  # ε and the actor's other buffers beside the network (the action spec stays on the CPU)
     replay = make_run_replay(cfg)
-    learner = Learner(cfg, model)
+    learner = Learner(cfg, model, device)
     state = dict(model=model, loss=learner.loss, optimizer=learner.optimizer, egreedy=egreedy)
     if payload is not None:
         restore(payload, run_dir, replay=replay, **state)
-    summary = dict(run_dir=str(run_dir), start_step=counters["steps"], collection=collection_summary(cfg, env_seed))
+    summary = dict(run_dir=str(run_dir), start_step=counters["steps"], device=str(device),
+                   collection=collection_summary(cfg, env_seed))
     if trained_enough(cfg, counters):
         env.close()
         return dict(summary, **counters, note="nothing left to train")
     monitor = Monitor(cfg, counters, env.base_env.primitive_names)
-    collector, env = start_collector(cfg, explore, env, env_seed, frames=cfg.steps - counters["steps"])
+    collector, env = start_collector(cfg, explore, env, env_seed, frames=cfg.steps - counters["steps"], device=device)
 
     # loop: collect one action per worker, store it, update, log, checkpoint; with a worker process the update on
     # one batch runs while the workers collect the next (see Overlap)
@@ -148,6 +157,20 @@ def resume_payload(cfg: ClutterConfig) -> dict | None:
     return payload
 
 
+def learner_device(name: str) -> torch.device:
+    """The device of a config's ``device`` (see :func:`~maniskill_pnp.runtime.resolve_device`), a CUDA device with
+    its index; ValueError when this machine has no such device."""
+    device = resolve_device(name)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"device {name!r}: CUDA is not available on this machine (use 'auto' or 'cpu')")
+        index = torch.cuda.current_device() if device.index is None else device.index
+        if index >= torch.cuda.device_count():
+            raise ValueError(f"device {name!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+        device = torch.device("cuda", index)
+    return device
+
+
 def trained_enough(cfg: ClutterConfig, counters: dict) -> bool:
     """Whether the run has reached its ``steps``, or its ``episodes`` when that is set."""
     return counters["steps"] >= cfg.steps or bool(cfg.episodes and counters["episodes"] >= cfg.episodes)
@@ -175,16 +198,18 @@ def collection_summary(cfg: ClutterConfig, env_seed: int) -> dict:
                 worker_seeds=worker_seeds(env_seed, cfg.workers))
 
 
-def start_collector(cfg: ClutterConfig, explore, env, env_seed: int, frames: int):
-    """The collector of ``frames`` more actions of the ε-greedy actor ``explore``, and the env the caller still has
-    to close: ``env`` itself with the direct backend, else None (``env`` only gave the specs; it is closed here and
-    every worker builds its own)."""
+def start_collector(cfg: ClutterConfig, explore, env, env_seed: int, frames: int, device: torch.device | None = None):
+    """The collector of ``frames`` more actions of the ε-greedy actor ``explore`` (on ``device``, default the CPU),
+    and the env the caller still has to close: ``env`` itself with the direct backend, which acts with ``explore`` on
+    its device, else None (``env`` only gave the specs; it is closed here and every worker builds its own and acts
+    with a CPU copy of ``explore``)."""
     kind = backend(cfg)
     if kind != "direct":
         env.close()
         env = None
     collector = make_collector(partial(make_worker_env, cfg), explore, seed=env_seed, total_frames=frames,
-                               workers=cfg.workers, backend=kind, sync=cfg.sync, env=env)
+                               workers=cfg.workers, backend=kind, sync=cfg.sync, env=env,
+                               policy_device=device if kind == "direct" else None)
     return collector, env
 
 
@@ -270,10 +295,12 @@ def make_run_replay(cfg: ClutterConfig):
 
 class Learner:
     """The config's loss (pixelwise DQN, or the binary-classification baseline), its target-network updater and the
-    optimizer; :meth:`update` runs SGD steps on prioritized replay batches."""
+    optimizer; :meth:`update` runs SGD steps on prioritized replay batches. ``model`` must already be on ``device``,
+    where the target network and the optimizer state then are too, and each sampled batch is moved (the replay stays
+    on the CPU)."""
 
-    def __init__(self, cfg: ClutterConfig, model: torch.nn.Module):
-        self.model = model
+    def __init__(self, cfg: ClutterConfig, model: torch.nn.Module, device: torch.device = torch.device("cpu")):
+        self.model, self.device = model, torch.device(device)
         if cfg.loss == "bce":
             self.loss, self.key = PixelBCELoss(model), "loss_bce"
         else:
@@ -292,19 +319,23 @@ class Learner:
         """``steps`` SGD steps, each on a fresh prioritized batch whose priorities it then refreshes (the network in
         train mode meanwhile); returns ``steps``."""
         self.model.train()
+        priority = self.loss.tensor_keys.priority
         for _ in range(steps):
             sample = unpack_transition(replay.sample())
-            loss = self.loss(sample)[self.key]
+            batch = sample if self.device.type == "cpu" else sample.to(self.device)
+            loss = self.loss(batch)[self.key]
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.optimizer.step()
             if self.updater is not None:
                 self.updater.step()
+            if batch is not sample:  # the loss wrote the batch's TD errors on the device
+                sample.set(priority, batch.get(priority).cpu())
             replay.update_tensordict_priority(sample)
             self.last_loss = loss.item()
         self.model.eval()
         return steps
 
 
-__all__ = ["Learner", "Monitor", "Overlap", "backend", "collection_summary", "crossed", "main", "make_run_replay",
-           "overlapped", "resume_payload", "start_collector", "trained_enough"]
+__all__ = ["Learner", "Monitor", "Overlap", "backend", "collection_summary", "crossed", "learner_device", "main",
+           "make_run_replay", "overlapped", "resume_payload", "start_collector", "trained_enough"]
