@@ -88,12 +88,13 @@ class Kinematics:
                 if not self.arm.within_limits(q):
                     reasons.add("IK solution outside the joint limits")
                     continue
+                d = float(np.max(np.abs(q - q_near)))
+                if d >= best_d:  # no nearer than a valid one found: its collision check could not change the answer
+                    continue
                 if not self.world.is_valid(q):
                     reasons.add("every IK solution collides")
                     continue
-                d = float(np.max(np.abs(q - q_near)))
-                if d < best_d:
-                    best, best_d = q, d
+                best, best_d = q, d
             if best is not None and best_d < 0.5:
                 break
         if best is None:

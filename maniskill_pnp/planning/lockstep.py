@@ -306,10 +306,11 @@ class DirectDrives:
     def set(self, q: np.ndarray, gripper: float) -> None:
         """Drive targets of the arm (``(1, dof)`` rad) and the gripper command (+1 open, -1 closed)."""
         q32 = np.ascontiguousarray(q, dtype=np.float32).reshape(1, -1)
-        if np.isnan(q32).any():
-            raise ValueError(f"arm targets must not be NaN, got {q32[0].tolist()}")
-        for i, joint in enumerate(self._arm_joints):
-            joint.drive_target = q32[0, i : i + 1]
+        targets = q32[0].tolist()  # float32 values as Python floats (exact): the scalar setter takes them ~3x faster
+        if any(v != v for v in targets):
+            raise ValueError(f"arm targets must not be NaN, got {targets}")
+        for joint, target in zip(self._arm_joints, targets):
+            joint.set_drive_target(target)
         self._arm._target_qpos = torch.from_numpy(q32)
         want = self._grip_targets.get(gripper)
         if want is None or any(float(j.drive_target[0]) != w for j, w in zip(self._grip_joints, want)):

@@ -19,13 +19,20 @@ smallest of these, 1.2 mm, so that the model errs towards rolling too far rather
 sphere set rolling at 0.1 / 0.2 / 0.3 m/s stops after 1.2 / 4.8 / 10.7 cm (the law; measured in the tasks' physics
 within 5% of it).
 
-The torque is applied every physics step, capped so that it stops a rolling sphere but never turns it back.
+The torque is applied every physics step, capped so that it stops a rolling sphere but never turns it back, and only
+to spheres that roll (:meth:`RollingResistance.apply`): awake, turning fast enough to roll at :data:`MIN_ROLLING_SPEED`
+or more, and resting on the table. A sphere at rest still turns a little in PhysX's contact solver (about 1e-6 m/s at
+its rim); a torque against that would change nothing, but every torque PhysX is given wakes its body, so it kept
+the sphere, and every object touching it, awake and simulated on every step (with the Python work of the torque, a
+clutter task's physics step took 2.5 times as long, issue 51). Left alone, such a sphere falls asleep as any other
+resting body does.
 The GPU-batched simulation does not apply it yet (only the CPU simulation, where every step's torques are set per
 body).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +42,10 @@ import numpy as np
 LEVER_ARM = 1.2e-3
 #: A sphere whose lowest point is within this (m) of the table top rests on it.
 CONTACT_BAND = 1e-3
+#: A sphere whose horizontal spin would roll it slower than this (m/s) is not rolling (:meth:`RollingResistance.apply`
+#: gives it no torque): 100 times what a sphere at rest turns at in the contact solver, and a speed at which the
+#: torque would stop it within a step, after rolling a micrometre.
+MIN_ROLLING_SPEED = 1e-4
 
 
 @dataclass(frozen=True)
@@ -70,11 +81,22 @@ class RollingResistance:
 
     def apply(self, bodies, dt: float) -> None:
         """Add the torque of each ``(component, radius)`` in ``bodies`` (SAPIEN ``PhysxRigidDynamicComponent`` of a
-        sphere) for the next physics step of ``dt`` seconds."""
+        sphere) for the next physics step of ``dt`` seconds, to those that roll: not asleep, their horizontal spin at
+        least :data:`MIN_ROLLING_SPEED` at the rim, resting on the table (:meth:`torque`). The others are left
+        untouched, so that PhysX can put a sphere at rest to sleep; and the cheap tests (sleep, then spin) come
+        first, since this runs for every sphere on every physics step."""
+        if self.lever_arm == 0:
+            return
         for body, radius in bodies:
             if body.is_sleeping:
                 continue
-            tau = self.torque(body.entity.pose.p, body.angular_velocity, radius, body.mass, float(np.min(body.inertia)), dt)
+            spin = body.angular_velocity.tolist()
+            if math.hypot(spin[0], spin[1]) * radius < MIN_ROLLING_SPEED:
+                continue
+            position = body.entity_pose.p
+            if position[2] - radius > self.table_z + CONTACT_BAND:
+                continue
+            tau = self.torque(position, spin, radius, body.mass, min(body.inertia.tolist()), dt)
             if tau.any():
                 body.add_force_torque(np.zeros(3, dtype=np.float32), tau.astype(np.float32))
 
