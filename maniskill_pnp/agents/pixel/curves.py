@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from maniskill_pnp.agents.pixel.eval_figures import save_figure
 from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS
 
 
@@ -137,11 +138,7 @@ def plot_training_curves(runs: dict[str, str | Path], out_png: str | Path, windo
             if ax.lines:
                 ax.legend(loc="lower right", fontsize=8)
         axes[0, col].set_title(title)
-    fig.tight_layout()
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=110)
-    plt.close(fig)
+    save_figure(fig, out_png)
     return summary
 
 

@@ -33,6 +33,20 @@ def _grouped_bars(ax, scenarios: list[str], series: dict[str, tuple[list[float],
     ax.grid(axis="y", alpha=0.3)
 
 
+def save_figure(fig, path: Path, title: str | None = None) -> Path:
+    """Give ``fig`` its ``title`` (if any), write it as a PNG at ``path`` (its folder made) and close it."""
+    import matplotlib.pyplot as plt
+
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_scenario_metrics(rows: dict[str, list[dict]], path: Path) -> Path:
     """Completion and action efficiency per scenario (%), ± the standard error over scenes, one bar per label.
 
@@ -57,13 +71,7 @@ def plot_scenario_metrics(rows: dict[str, list[dict]], path: Path) -> Path:
         ax.set_ylim(0, max(105.0, top + 5))
     if len(rows) > 1:
         axes[0][-1].legend(fontsize=8, loc="lower right")
-    fig.suptitle("per scenario, ± standard error over scenes")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, "per scenario, ± standard error over scenes")
 
 
 def plot_paired(diffs: dict[str, dict[str, dict]], path: Path) -> Path:
@@ -86,13 +94,7 @@ def plot_paired(diffs: dict[str, dict[str, dict]], path: Path) -> Path:
         ax.axhline(0.0, color="black", linewidth=0.8)
         ax.set_ylabel(f"Δ {name} (points)")
     axes[0][-1].legend(fontsize=8)
-    fig.suptitle("paired per-scene differences, error bars ± 2 standard errors")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, "paired per-scene differences, error bars ± 2 standard errors")
 
 
-__all__ = ["FIGURE_METRICS", "PAIRED_METRICS", "plot_paired", "plot_scenario_metrics"]
+__all__ = ["FIGURE_METRICS", "PAIRED_METRICS", "plot_paired", "plot_scenario_metrics", "save_figure"]
