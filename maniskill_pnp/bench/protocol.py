@@ -41,7 +41,7 @@ import json
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -274,16 +274,18 @@ def run_job(job: Job, queue=None) -> dict:
 
 
 def _run_conveyor(job: Job, tick) -> None:
-    from maniskill_pnp.agents.tabular.evaluate import TEST_CASES, EvalConfig, run
+    from maniskill_pnp.agents.tabular.evaluate import EvalConfig, run
 
     run(EvalConfig(checkpoints=(job.agent,), iterations=job.part.episodes, out=job.folder))
-    for _ in range(len(TEST_CASES) * job.part.episodes):
+    for _ in range(scenes_of(job)):
         tick()
 
 
 def scenes_of(job: Job) -> int:
-    """The scenes (episodes) a job plays: the unit of the progress bar."""
-    return job.part.episodes * (5 if job.kind == "conveyor" else 1)
+    """The scenes (episodes) a job plays: the unit of the progress bar (a conveyor part plays each test case)."""
+    from maniskill_pnp.agents.tabular.evaluate import TEST_CASES
+
+    return job.part.episodes * (len(TEST_CASES) if job.kind == "conveyor" else 1)
 
 
 # ----------------------------------------------------------------------------- main
@@ -328,9 +330,7 @@ def run(cfg: BenchmarkConfig) -> dict:
                                   flush=True)
                     if pending:
                         time.sleep(0.5)
-                for f in as_completed(futures):  # drain: every future has ended here
-                    pass
-                while not queue.empty():
+                while not queue.empty():  # the ticks of the last scenes
                     queue.get()
                     bar.update()
     report = write_report(jobs, cfg, failed)

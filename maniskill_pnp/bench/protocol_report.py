@@ -106,8 +106,10 @@ def write_report(jobs: list[Job], cfg: BenchmarkConfig, failed: dict[str, str]) 
     for job in jobs:
         by_agent.setdefault(job.label, []).append(job)
     machine = machine_info()
-    walls = [w for w in (part_wall_s(j) for j in jobs) if w is not None]
-    revisions = sorted({str(_done(j).get("revision", "unknown")) for j in jobs if _done(j)})
+    done = [d for d in map(_done, jobs) if d]
+    walls = [float(d["wall_s"]) for d in done if "wall_s" in d]
+    revisions = sorted({str(d.get("revision", "unknown")) for d in done})
+    labels = [lb for lb in by_agent if by_agent[lb][0].kind != "conveyor"]  # the clutter agents
     lines = [
         f"# Benchmark report ({'quick' if cfg.quick else 'full'} protocol)", "",
         f"{datetime.date.today().isoformat()}; parts run by maniskill_pnp at {', '.join(revisions) or 'unknown'}; "
@@ -131,26 +133,29 @@ def write_report(jobs: list[Job], cfg: BenchmarkConfig, failed: dict[str, str]) 
             lines += _conveyor_section(agent_jobs)
             continue
         rows, lost, strips = [], [], []
+        full, restricted = {}, {}  # the G&S parts' rows, and the grasp-only restrictions', by (scenario, guard)
         for job in agent_jobs:
             summary = _summary(job)
             if summary is None:
                 continue
             rows.append(_row(job, summary))
             episodes_of[(label, job.part.name)] = summary["episodes"]
+            (restricted if job.part.grasp_only else full)[(job.part.scenario, job.part.guard_force)] = (job, rows[-1])
             lost += [(job.part.name, e) for e in summary["episodes"] if e["lost"]]
             strips += [Path(p) for p in summary.get("strips", [])]
         lines += clutter_table(rows) + [""]
-        single = len([lb for lb in by_agent if by_agent[lb][0].kind != "conveyor"]) == 1
+        single = len(labels) == 1
         figure_rows[f"{label} (G&S)" if single and agent_jobs[0].kind == "grasp_slide" else label] = [
-            r for r in rows if "grasp-only" not in r["scenario"]]
-        if single:
-            figure_rows[f"{label}, grasp-only"] = [{**r, "scenario": r["scenario"].replace(" grasp-only", "")}
-                                         for r in rows if "grasp-only" in r["scenario"]]
+            row for _, row in full.values()]
+        if single:  # the grasp-only bars beside the G&S ones, under the G&S parts' names
+            figure_rows[f"{label}, grasp-only"] = [{**row, "scenario": full[key][0].part.name}
+                                                   for key, (_, row) in restricted.items() if key in full]
         diffs = {}
-        for job in agent_jobs:
-            other = episodes_of.get((label, f"{job.part.name} grasp-only"))
-            if not job.part.grasp_only and other is not None:
-                diffs[job.part.name] = _paired(episodes_of[(label, job.part.name)], other, job.part.name)
+        for key, (job, _) in full.items():
+            if key in restricted:
+                other = restricted[key][0]
+                diffs[job.part.name] = _paired(episodes_of[(label, job.part.name)],
+                                               episodes_of[(label, other.part.name)], job.part.name)
         if diffs:
             lines += ["G&S − its grasp-only restriction, paired per scene:", ""] + paired_table(diffs) + [""]
             paired_figure[f"{label}: G&S − grasp-only"] = diffs
@@ -158,7 +163,6 @@ def write_report(jobs: list[Job], cfg: BenchmarkConfig, failed: dict[str, str]) 
         lines += ["Wall time per part (min): " + ", ".join(
             f"{j.part.name} {w / 60:.1f}" for j in agent_jobs if (w := part_wall_s(j)) is not None), ""]
 
-    labels = [lb for lb in by_agent if by_agent[lb][0].kind != "conveyor"]
     if len(labels) > 1:
         ref = labels[0]
         lines += [f"## Agents compared with {ref}, paired per scene", ""]

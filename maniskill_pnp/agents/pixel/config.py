@@ -63,6 +63,16 @@ RETIRED_PRESETS = {
     "gs-no-slide-reward": "gs-thesis",
     "gs-double-dqn": "gs-thesis",
 }
+
+
+def unretired(preset: str, name: str | None) -> tuple[str, str | None]:
+    """``(preset, name)`` of a recorded config: a retired preset (:data:`RETIRED_PRESETS`) becomes its base preset,
+    and the name of the recipe, unless one is given; any other preset stays as it is."""
+    if preset in RETIRED_PRESETS:
+        return RETIRED_PRESETS[preset], name or preset
+    return preset, name
+
+
 #: Characters of a run's ``name`` (it names a folder).
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
 #: The values of ``device``.
@@ -235,9 +245,9 @@ class ClutterConfig(RunConfig):
 
     def __post_init__(self):
         object.__setattr__(self, "out", Path(self.out))
-        if self.preset in RETIRED_PRESETS:  # recorded before it became a config file: its base, and its name
-            object.__setattr__(self, "name", self.name or self.preset)
-            object.__setattr__(self, "preset", RETIRED_PRESETS[self.preset])
+        preset, name = unretired(self.preset, self.name)  # recorded before it became a config file
+        object.__setattr__(self, "preset", preset)
+        object.__setattr__(self, "name", name)
         if self.preset not in presets():
             raise ValueError(f"unknown preset {self.preset!r}; valid: {list(presets())}")
         if self.name is not None and not _NAME.fullmatch(self.name):
@@ -324,8 +334,7 @@ class ClutterConfig(RunConfig):
         """
         values = super().values_from_file(path)
         if values.get("preset") in RETIRED_PRESETS:
-            values["name"] = values.get("name") or values["preset"]
-            values["preset"] = RETIRED_PRESETS[values["preset"]]
+            values["preset"], values["name"] = unretired(values["preset"], values.get("name"))
         return values
 
     @classmethod
@@ -400,5 +409,5 @@ def preset_descriptions() -> dict[str, str]:
 
 __all__ = [
     "ARCHITECTURE_FIELDS", "CHOICES", "ClutterConfig", "LOSSES", "OPTIMIZERS", "PRESETS_FILE", "RETIRED_PRESETS", "TASKS",
-    "preset_descriptions", "presets",
+    "preset_descriptions", "presets", "unretired",
 ]

@@ -405,13 +405,13 @@ def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, m
         decision = None if drawn is None else describe(env, action, maps.numpy(), obs, tally.actions)
         obs, reward, terminated, truncated, info = env.step(action)
         tally.add(info)
+        failed = int(info["consecutive_failures"]) > 0  # a failed grasp, or a slide that changed nothing
         if decision is not None:
-            primitive = decision["primitive"]
-            decision.update(outcome_lines=outcome_lines(info, float(reward.item()), primitive),
-                            failed=int(info["consecutive_failures"]) > 0, lost=sum(int(info[k]) for k in LOSS_CAUSE_KEYS))
+            decision.update(outcome_lines=outcome_lines(info, float(reward.item()), decision["primitive"]),
+                            failed=failed, lost=sum(int(info[k]) for k in LOSS_CAUSE_KEYS))
             drawn.append(decision)
         if memory is not None:
-            memory.observe(action, int(info["consecutive_failures"]) > 0, obs["depth_heightmap"][0].cpu().numpy())
+            memory.observe(action, failed, obs["depth_heightmap"][0].cpu().numpy())
         done = bool(terminated.item() or truncated.item())
         if on_step is not None:
             on_step(info)
