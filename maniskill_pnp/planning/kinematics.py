@@ -66,16 +66,23 @@ class Kinematics:
         raw = np.asarray(self._model.get_link_pose(self._tcp), dtype=np.float64)
         return self.world.base_to_world(raw)
 
-    def ik(self, pose: sapien.Pose, q_near: np.ndarray, *, restarts: int = 12, tol: float = 2e-3) -> IKResult:
-        """A valid arm configuration reaching the world TCP ``pose``, nearest to ``q_near``.
+    #: A valid solution that moves no joint farther than this (rad) from ``q_near`` ends the search. The first attempt,
+    #: seeded at ``q_near``, finds one for nearly every grasp and release of the clutter tasks; a random restart then
+    #: saves at most about 0.1 rad of travel (about 50 ms of a free-space motion at the Panda's rated speed), at 20-50 ms
+    #: of IK per restart round. Restarts still run where the first solution swings the arm farther (another branch).
+    NEAR = 1.25
 
-        The first attempt starts at ``q_near``; further ones from random configurations. Stops early once a
-        solution within 0.5 rad (max joint distance) of ``q_near`` is found.
+    def ik(self, pose: sapien.Pose, q_near: np.ndarray, *, restarts: int = 12, tol: float = 2e-3) -> IKResult:
+        """A valid arm configuration reaching the world TCP ``pose``, near ``q_near``.
+
+        The first attempt starts at ``q_near``; further ones from random configurations, until a solution within
+        :attr:`NEAR` rad (max joint distance) of ``q_near`` is found; the nearest found wins.
         """
         return self.ik_any([pose], q_near, restarts=restarts, tol=tol)
 
     def ik_any(self, poses: list[sapien.Pose], q_near: np.ndarray, *, restarts: int = 12, tol: float = 2e-3) -> IKResult:
-        """Like :meth:`ik`, for several equivalent goal poses (e.g. a parallel-jaw grasp and its 180° twin)."""
+        """Like :meth:`ik`, for several equivalent goal poses (e.g. a parallel-jaw grasp and its 180° twin); every pose
+        is tried in each attempt."""
         best, best_d, reasons = None, np.inf, set()
         targets = [self._base_pose7(p) for p in poses]
         for attempt in range(restarts + 1):
@@ -95,7 +102,7 @@ class Kinematics:
                     reasons.add("every IK solution collides")
                     continue
                 best, best_d = q, d
-            if best is not None and best_d < 0.5:
+            if best is not None and best_d < self.NEAR:
                 break
         if best is None:
             return IKResult(None, "; ".join(sorted(reasons)) or "no IK solution")
