@@ -33,7 +33,8 @@ def _export_clutter(args) -> None:
 
     try:
         acting = {k: v for k, v in dict(slide_margin=args.slide_margin, mask_grasp_fit=args.mask_grasp_fit,
-                                       mask_fit_scale=args.mask_fit_scale).items()
+                                       mask_fit_scale=args.mask_fit_scale, mask_keep_in=args.mask_keep_in,
+                                       mask_reach=args.mask_reach).items()
                   if v is not None}
         path = export_weights(checkpoint_file(args.checkpoint), args.out, half=args.half, **acting)
     except (FileNotFoundError, ValueError) as e:
@@ -179,7 +180,7 @@ def _bench_scale(args) -> None:
 #: soak's too).
 #: The scenarios that play scene files (agents.pixel.factories.FILE_SCENARIOS, written out here so that building the
 #: parser imports no torch; a test keeps the two equal).
-FILE_SCENARIO_NAMES = ("hard", "hard_unseen")
+FILE_SCENARIO_NAMES = ("hard", "hard_unseen", "anywhere")
 PIXEL_BENCH_OPTIONS = ("backbone", "num_rotations", "heightmap_size", "num_primitives", "repeats", "warmup", "device",
                        "threads", "max_rss_gb")
 
@@ -582,6 +583,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the agent grasps only where a grasp fits the heightmap (default: as the run was trained)")
     export.add_argument("--mask-fit-scale", type=int, default=None, help="test the grasp fit on a heightmap this many "
                         "times finer than the network's (needs the fit test; default: as the run was trained)")
+    export.add_argument("--mask-keep-in", action=argparse.BooleanOptionalAction, default=None,
+                        help="the agent slides only where the push keeps what it carries on the heightmap "
+                        "(default: as the run was trained)")
+    export.add_argument("--mask-reach", action=argparse.BooleanOptionalAction, default=None,
+                        help="the agent acts only where the arm reaches (default: as the run was trained)")
     export.set_defaults(func=_export_clutter)
 
     check = sub.add_parser("check-scene", help="which objects of scene files no top-down grasp can take (locked): "

@@ -305,3 +305,34 @@ def test_packed_fraction_packs_that_share_of_episodes_and_the_piles_validate():
     for bad, match in ((1.5, "packed_fraction"), (0.5, "not with layout")):
         with pytest.raises(ValueError, match=match):
             gym.make("ClutterGraspSlide-v1", workspace=WS, packed_fraction=bad, layout=TWO_CUBES if bad == 0.5 else None, **CPU)
+
+
+def test_keep_in_mask_withholds_the_slide_that_pushes_a_cube_out_and_offers_the_one_that_does_not():
+    """Two 4 cm cubes, one at the middle and one 2 cm from the workspace's +x edge; the right slide of rotation 1
+    pushes +x. From 2 px before each cube the material mask allows both slides; the keep-in mask (the agents' mask)
+    keeps the middle one, which leaves its cube in the workspace, and withholds the edge one, which, executed anyway
+    (any in-space action is), pushes its cube out."""
+    from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
+
+    edge_x = WS.bounds[0, 1] - 0.04
+    layout = [(CUBE, (CX - 0.1, CY, 0.02)), (CUBE, (edge_x, CY + 0.12, 0.02))]
+    e = gym.make("ClutterGraspSlide-v1", workspace=WS, layout=layout, **CPU)
+    try:
+        obs, _ = e.reset(seed=0)
+        u = e.unwrapped
+        primitives = u.PRIMITIVES
+        plain = HeightmapActionMask.for_workspace(primitives, WS)
+        keep_in = HeightmapActionMask.for_workspace(primitives, WS, keep_in=True)
+        right, rot = primitives.index("right_slide"), 1
+        assert np.allclose(WS.slide_direction(rot, "right"), (1.0, 0.0))
+        for (x, y, _), stays in zip((layout[0][1], layout[1][1]), (True, False)):
+            height = torch.as_tensor(obs["depth_heightmap"]).reshape(1, 64, 64)
+            row, face = (int(v) for v in WS.world_to_pixel(np.array([x - 0.02, y, 0.0])))
+            col = face - 2
+            assert plain.pixel_masks(height)[0, right, rot, row, col], (row, col)
+            assert bool(keep_in.pixel_masks(height)[0, right, rot, row, col]) == stays
+            obs, _, _, _, info = e.step(u.action_layout.encode(right, rot, row, col))
+            assert info["primitive"] == "right_slide" and info["slide_changed"], info
+            assert info["lost_by_slide"] == (0 if stays else 1), info
+    finally:
+        e.close()

@@ -81,13 +81,18 @@ def test_a_cylinder_lying_in_a_cradle_is_valid():
 
 
 def test_workspace_and_table_by_shape():
+    """An object starts a scene wholly over the heightmap (its shapes, within 1 mm of the edge), where the arm reaches
+    some grasp, and not below the table."""
     cylinder = ObjectSpec("cylinder", (0.02, 0.015))
-    x_max = WS.bounds[0, 1]
-    overhanging = (cylinder, (x_max - 0.005, CY, 0.015))  # over the edge, its centre over the square
-    assert len(validate_layout([overhanging], WS)) == 1
-    with pytest.raises(ValueError, match=r"layout object 0 \(cylinder\) has its centre at x 0\.\d+, y .*: not over the "
-                                         r"workspace"):
-        validate_layout([(cylinder, (x_max + 0.001, CY, 0.015))], WS)
+    x_max, y_min = WS.bounds[0, 1], WS.bounds[1, 0]
+    assert len(validate_layout([(cylinder, (x_max - 0.0205, CY, 0.015))], WS)) == 1  # 0.5 mm inside the edge
+    with pytest.raises(ValueError, match=r"layout object 0 \(cylinder\) reaches x 0\.\d+\.\.0\.\d+, y .*: not wholly over "
+                                         r"the workspace"):
+        validate_layout([(cylinder, (x_max - 0.005, CY, 0.015))], WS)  # its centre over the square, its side over the edge
+    small = ObjectSpec("cuboid", (0.01, 0.01, 0.01))
+    with pytest.raises(ValueError, match=r"layout object 0 \(cuboid\) has its centre at x 0\.\d+, y -0\.\d+, where the "
+                                         r"arm reaches no top-down grasp"):
+        validate_layout([(small, (x_max - 0.012, y_min + 0.012, 0.01))], WS)  # the far corner, beyond the Panda's reach
     sphere = ObjectSpec("sphere", (0.02,))
     with pytest.raises(ValueError, match=r"layout object 0 \(sphere\) reaches z -0\.0030, below the table at 0\.0 "
                                          r"\(by 3\.0 mm; 1\.0 mm allowed\)"):

@@ -17,6 +17,7 @@ from maniskill_pnp.agents.pixel.loss import PixelDQNLoss
 from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
 from maniskill_pnp.agents.pixel.policy import GreedyPixelActor, PrimitiveExploreMask, make_pixel_policy
 from maniskill_pnp.cell.pixel_action import PixelActionLayout
+from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 H = W = 8
 R = 2
@@ -315,3 +316,99 @@ def test_actor_and_bootstrap_read_the_fit_heightmap():
                                  "done": torch.zeros(1, dtype=torch.bool), "fit_heightmap": fine.half()}}, batch_size=[1])
     loss(batch)
     torch.testing.assert_close(batch["td_error"], (2.0 - loss.bootstrap(obs, fine)).abs())
+
+
+# ---------------------------------------------------------------------------------------------- slides kept in
+def keep_in_reference(occupied: torch.Tensor, steps: torch.Tensor, band: torch.Tensor, length: int, b: int,
+                      row: int, col: int) -> bool:
+    """The keep-in judgement of one slide start, step by step in plain Python: the pusher meets material at its first
+    step t0 <= length, carries it length - t0 on, and every empty step past t0 uses up one step of that push; each
+    material step still reached adds one step to where the carried material ends (length + carried)."""
+    h, w = occupied.shape
+    lines = band.nonzero().tolist()
+
+    def material(r: int, c: int) -> bool:
+        return any(0 <= r + dr - b < h and 0 <= c + dc - b < w and bool(occupied[r + dr - b, c + dc - b])
+                   for dr, dc in lines)
+
+    met, off = [], len(steps) + 1
+    for t, (dr, dc) in enumerate(steps.tolist(), start=1):
+        r, c = row + dr, col + dc
+        if not (0 <= r < h and 0 <= c < w):
+            off = min(off, t)
+            met.append(False)
+        else:
+            met.append(material(r, c))
+    if not any(met[:length]):
+        return True
+    t0 = met.index(True) + 1
+    left, carried = length - t0, 0
+    for t in range(t0 + 1, len(met) + 1):
+        if met[t - 1]:
+            carried += 1
+        else:
+            left -= 1
+            if left <= 0:
+                break
+    return length + carried < off
+
+
+def test_keep_in_matches_a_step_by_step_reading_of_the_push():
+    ws = WorkspaceSpec(heightmap_size=24, pixel_size=0.448 / 24, num_rotations=8)
+    mask = HeightmapActionMask.for_workspace(("grasp", "left_slide", "right_slide"), ws, keep_in=True)
+    gen = torch.Generator().manual_seed(0)
+    occupied = torch.rand(24, 24, generator=gen) > 0.85
+    band, steps = mask._push_rays
+    everywhere = torch.ones(1, 8, 24, 24, dtype=torch.bool)
+    for side in ("left", "right"):
+        keep = mask.slides_keep_in(occupied[None, None], side, everywhere)[0]
+        for rot in range(8):
+            for row in range(0, 24, 3):
+                for col in range(0, 24, 3):
+                    want = keep_in_reference(occupied, steps[side][rot], band[rot, 0], mask.slide_length_px,
+                                             mask.slide_band_px, row, col)
+                    assert bool(keep[rot, row, col]) == want, (side, rot, row, col)
+    assert not keep.all() and keep.any()
+
+
+def test_keep_in_masks_pushes_that_carry_a_block_off_the_heightmap():
+    """A 5x7 px block pushed towards the right edge (+x, the right slide of rotation 4 of 16) from 5 px before it: the
+    slide's 11 px carry it 6 px on. With 7 px to spare it stays on the map; with 3 px it would leave, and only the
+    keep-in test masks that slide. Pushing it the other way stays allowed."""
+    ws = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=16)
+    primitives = ("grasp", "left_slide", "right_slide")
+    keep_in = HeightmapActionMask.for_workspace(primitives, ws, keep_in=True)
+    plain = HeightmapActionMask.for_workspace(primitives, ws)
+    assert (keep_in.slide_length_px, keep_in.slide_band_px) == (11, 3)
+    for first_col, stays in ((50, True), (54, False)):
+        h = torch.zeros(1, 64, 64)
+        h[0, 30:35, first_col:first_col + 7] = 0.03
+        row, col = 32, first_col - 5
+        assert plain.pixel_masks(h)[0, 2, 4, row, col]
+        assert bool(keep_in.pixel_masks(h)[0, 2, 4, row, col]) == stays
+        assert keep_in.pixel_masks(h)[0, 1, 4, row, first_col + 9]  # the left slide pushes it back in
+
+
+def test_keep_in_carries_what_the_push_reaches_across_a_gap():
+    """Blocks 3 px long pushed towards the bottom edge (+y, the left slide of rotation 0) from row 49: the pusher meets
+    the first at step 2 and carries it 9 px on, its front ending at step 11 + 2 (row 62), on the map. A second block 2
+    px behind it is reached (the push closes the gap) and carried too: the front then ends at step 16, off the map. A
+    second block 9 px behind is out of the push's reach."""
+    ws = WorkspaceSpec(heightmap_size=64, pixel_size=0.448 / 64, num_rotations=16)
+    mask = HeightmapActionMask.for_workspace(("grasp", "left_slide", "right_slide"), ws, keep_in=True)
+    start = 49
+    for gap, stays in ((None, True), (2, False), (9, True)):
+        h = torch.zeros(1, 64, 64)
+        h[0, start + 2:start + 5, 20:23] = 0.03
+        if gap is not None:
+            h[0, start + 5 + gap:start + 8 + gap, 20:23] = 0.03
+        where = torch.zeros(1, 16, 64, 64, dtype=torch.bool)
+        where[0, 0, start, 21] = True
+        assert bool(mask.slides_keep_in((h > 0.01)[:, None], "left", where)[0, 0, start, 21]) == stays, gap
+
+
+def test_bad_keep_in_options_raise():
+    with pytest.raises(ValueError, match="slide_length_px"):
+        HeightmapActionMask(("grasp", "left_slide"), 4, slide_length_px=0)
+    with pytest.raises(ValueError, match="slide_band_px"):
+        HeightmapActionMask(("grasp", "left_slide"), 4, slide_length_px=5, slide_band_px=-1)

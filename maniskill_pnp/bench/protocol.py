@@ -7,9 +7,9 @@ Q-table (``train-conveyor`` run folder or its ``qtable.pt``). The protocol is a 
 :data:`CONVEYOR_PARTS`):
 
 * a G&S agent (``ClutterGraspSlide-v1``): 24 ``medium``, 8 ``min``, 8 ``max`` scenes and the 8 locking layouts,
-  the hard set (32 scene files) and the held-out families (``hard_unseen``, 24) with guarded grasps and slides
-  (20 N); ``medium`` and both hard sets again with the agent's grasp-only restriction, the comparison of the
-  protocol;
+  the hard set (32 scene files), the held-out families (``hard_unseen``, 24) and packed arrangements anywhere in the
+  workspace (``anywhere``, 24) with guarded grasps and slides (20 N); ``medium`` and the three packed sets again
+  with the agent's grasp-only restriction, the comparison of the protocol;
 * a grasping agent (``ClutterGrasp-v1``): 24 scenes of 10 objects;
 * a conveyor Q-table: the thesis' random test cases 1-5, 50 episodes each.
 
@@ -84,6 +84,8 @@ GRASP_SLIDE_PARTS = (
     Part("hard grasp-only", "hard", 32, grasp_only=True, guard_force=GUARD_N, actions_per_episode=7),
     Part("hard_unseen", "hard_unseen", 24, guard_force=GUARD_N, actions_per_episode=6),
     Part("hard_unseen grasp-only", "hard_unseen", 24, grasp_only=True, guard_force=GUARD_N, actions_per_episode=7),
+    Part("anywhere", "anywhere", 24, guard_force=GUARD_N, actions_per_episode=6),
+    Part("anywhere grasp-only", "anywhere", 24, grasp_only=True, guard_force=GUARD_N, actions_per_episode=7),
 )
 #: The parts of a grasping agent (ClutterGrasp-v1).
 GRASP_PARTS = (Part("10 objects", "10", 24, actions_per_episode=11),)

@@ -28,6 +28,9 @@ from maniskill_pnp.cell.bin import BinSpec
 ROTATION_STEP_DIVISOR = 1000
 
 
+#: Where the clutter cell's Panda stands (world, m): its base, beside the table's near edge.
+DEFAULT_ROBOT_BASE = (-0.615, 0.0, 0.0)
+
 @dataclass(frozen=True)
 class CameraSpec:
     """A pinhole RGB-D camera looking at the workspace.

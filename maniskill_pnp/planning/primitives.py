@@ -275,7 +275,7 @@ class MotionPrimitives:
     def _reach(self, res: PrimitiveResult, pose: sapien.Pose, stage: str = "reach") -> None:
         # Free-space motion: every object is an obstacle.
         self._sync()
-        ik = self._timed(self.kin.ik_any, _twins(pose), self.executor.qpos())
+        ik = self._timed(self.kin.ik_any, grasp_twins(pose), self.executor.qpos())
         if not ik.ok:
             raise _StageFailed(f"{stage}_ik", ik.reason)
         yield from self._move_to(ik.q, f"move_to_{stage}", res)
@@ -286,7 +286,7 @@ class MotionPrimitives:
         # Straight descent: the target (or, when unknown, any movable object) may be touched.
         self._sync(ignore={target} if target else movable)
         fk = self.kin.fk(self.executor.qpos())
-        goal = min(_twins(pose), key=lambda p: quat_angle(p.q, fk.q))
+        goal = min(grasp_twins(pose), key=lambda p: quat_angle(p.q, fk.q))
         yield from self._straight(goal, "descend", res, guarded=True)
         heights = self._object_heights(movable)
         yield self._gripper(-1.0, self.GRIPPER_STEPS)
@@ -573,6 +573,6 @@ class _Guard:
         return True
 
 
-def _twins(pose: sapien.Pose) -> list[sapien.Pose]:
+def grasp_twins(pose: sapien.Pose) -> list[sapien.Pose]:
     """A parallel-jaw pose and its 180° twin about the vertical: the same grasp for symmetric jaws."""
     return [pose, pose * sapien.Pose(q=[0.0, 0.0, 0.0, 1.0])]

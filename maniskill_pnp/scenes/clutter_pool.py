@@ -20,6 +20,7 @@ from mani_skill.utils.structs.pose import Pose
 from maniskill_pnp.planning.collision import actor_pose
 from maniskill_pnp.planning.lockstep import Motion
 from maniskill_pnp.scenes.clutter import object_status, random_specs, redrop_poses, sample_clutter, sample_packed
+from maniskill_pnp.scenes.layout_check import placement_problem, reachable_pixels
 from maniskill_pnp.scenes.objects import ObjectSpec, build_object
 from maniskill_pnp.cell.workspace import WorkspaceSpec
 
@@ -103,6 +104,7 @@ class ClutterPool:
             self.arrangement_slots = [[self.random_count + i for i in index] for index in slots]
             self.specs = self.specs + specs
         self.names = [f"obj_{i}_{spec.kind}" for i, spec in enumerate(self.specs)]
+        self._reach: np.ndarray | None = None  # the reachable heightmap pixels, read on first use
         self.actors: list = []
         n = self.num_envs
         #: Per env: the pool indices of the episode's objects, their names and actors, and its layout (-1: random).
@@ -168,26 +170,36 @@ class ClutterPool:
             actor.set_angular_velocity(zeros)
 
     def redrop(self, envs: list[int], rngs: list[np.random.Generator], device) -> list[int]:
-        """Drop again the objects of ``envs``' random clutters that settled outside the workspace
-        (:func:`~maniskill_pnp.scenes.clutter.redrop_poses`, from each env's RNG), beside or onto those inside; the
+        """Drop again the objects of ``envs``' random clutters that settled outside the workspace, partly over its
+        edge, or where the arm reaches no grasp (:func:`~maniskill_pnp.scenes.layout_check.placement_problem`), by
+        :func:`~maniskill_pnp.scenes.clutter.redrop_poses`, from each env's RNG, beside or onto those inside; the
         objects of explicit layouts stay as they are. Returns how many objects each env drops again; the caller
         lets them settle (:meth:`settle_motion`) and calls again until none is outside. Call it with the scene's reset
         mask lifted (it sets every env's row of a moved actor)."""
         counts, new_poses = [], {}  # (k, pool index) -> pose
         for k, (e, rng) in enumerate(zip(envs, rngs)):
             status = self.status(e) if self.layout_index[e] < 0 else []
-            out = [j for j, where in enumerate(status) if where == "lost"]
+            out = [j for j, where in enumerate(status) if where == "lost" or self._misplaced(e, j)]
             counts.append(len(out))
             if not out:
                 continue
             index, actors = self.active_index[e], self.active_actors[e]
-            resting = [(self.specs[i], actor_pose(a, e).p) for i, a, where in zip(index, actors, status) if where == "workspace"]
+            resting = [(self.specs[i], actor_pose(a, e).p) for j, (i, a, where) in enumerate(zip(index, actors, status))
+                       if where == "workspace" and j not in out]
             upright = self.loosely_packed or bool(self.packed[e])
             poses = redrop_poses(rng, [self.specs[index[j]] for j in out], resting, self.workspace, upright=upright)
             new_poses.update({(k, index[j]): pose for j, pose in zip(out, poses)})
         for i in sorted({i for _, i in new_poses}):
             self._move(i, {e: new_poses[k, i] for k, e in enumerate(envs) if (k, i) in new_poses}, device)
         return counts
+
+    def _misplaced(self, env: int, j: int) -> bool:
+        """Whether env ``env``'s object ``j`` rests partly beyond the workspace's edge or out of the arm's reach."""
+        if self._reach is None:
+            self._reach = reachable_pixels(self.workspace)
+        i, actor = self.active_index[env][j], self.active_actors[env][j]
+        pose = actor_pose(actor, env)
+        return bool(placement_problem(self.specs[i], sapien.Pose(p=pose.p, q=pose.q), self.workspace, self._reach))
 
     def empty_bin(self, envs, device) -> list[int]:
         """Take the objects that came to rest in the bin of each of ``envs`` out of it (to their parked poses), as a

@@ -65,7 +65,7 @@ def hard_layout_files() -> list[Path]:
     return hard_scene_files() + complicated_layout_files()
 
 
-def _cells(rng: np.random.Generator, family: str) -> list[tuple[ObjectSpec, float, float]]:
+def cells(rng: np.random.Generator, family: str) -> list[tuple[ObjectSpec, float, float]]:
     """Objects and their centres (x, y) in the arrangement's frame, before it is turned and placed."""
     u = rng.uniform
     gap = lambda: u(0.001, 0.003)  # noqa: E731
@@ -148,7 +148,7 @@ def write_scene_set(out: Path, count: int, seed: int, layout_of, prefix: str, se
 
 def _draw(rng: np.random.Generator, workspace: WorkspaceSpec) -> tuple[str, list[tuple[ObjectSpec, sapien.Pose]]]:
     family = FAMILIES[int(rng.integers(len(FAMILIES)))]
-    parts = [(spec, x, y, 0.0) for spec, x, y in _cells(rng, family)]
+    parts = [(spec, x, y, 0.0) for spec, x, y in cells(rng, family)]
     yaw = rng.uniform(0.0, math.pi)
     centre = np.asarray(workspace.center) + rng.uniform(-0.02, 0.02, size=2)
     return family, place_parts(parts, yaw, centre, workspace)

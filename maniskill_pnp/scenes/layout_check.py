@@ -2,10 +2,11 @@
 
 :func:`check_layout` (what :func:`~maniskill_pnp.scenes.clutter.validate_layout` runs) tests, in this order:
 
-1. every object's centre lies over the workspace square (where the task counts it as in the workspace; its shapes
-   may overhang the edge, as objects of a drawn clutter can), and its collision shapes
-   (:func:`~maniskill_pnp.scenes.objects.collision_shapes` at its pose) reach no lower than :data:`BELOW_TABLE_TOL`
-   below the table top;
+1. every object lies wholly over the workspace square, the heightmap (its collision shapes,
+   :func:`~maniskill_pnp.scenes.objects.collision_shapes` at its pose, within :data:`EDGE_TOL` of it), where the arm
+   reaches some grasp at its centre (the cell's :class:`~maniskill_pnp.cell.reach_map.ReachMap`), and no lower than
+   :data:`BELOW_TABLE_TOL` below the table top (:func:`placement_problem`; a drawn clutter's objects that settle
+   otherwise are drawn again);
 2. no two objects interpenetrate by more than :data:`PENETRATION_TOL` (PhysX's contact generation on the collision
    shapes in a SAPIEN CPU scene: the separation of every pair closer than :data:`CONTACT_OFFSET`, negative for a
    penetration, as the simulation will see it; objects may touch, and one may lie in another's hollow (a
@@ -38,6 +39,8 @@ logger = logging.getLogger(__name__)
 PENETRATION_TOL = 1e-3
 #: Shapes may reach this far (m) below the table top.
 BELOW_TABLE_TOL = 1e-3
+#: Shapes may reach this far (m) past the workspace square's edges.
+EDGE_TOL = 1e-3
 #: Objects closer than this (m) touch: they are checked by the settle.
 CONTACT_GAP = 5e-4
 #: Contact offset (m) of the shapes in the check's physics scenes: pairs closer than this are reported.
@@ -72,12 +75,40 @@ def _name(i: int, spec: ObjectSpec) -> str:
     return f"{i} ({spec.label})"
 
 
-def _world_shapes(spec: ObjectSpec, pose: sapien.Pose) -> list[tuple[str, sapien.Pose, tuple]]:
+def world_shapes(spec: ObjectSpec, pose: sapien.Pose) -> list[tuple[str, sapien.Pose, tuple]]:
     return [(kind, pose * local, params) for kind, local, params in collision_shapes(spec)]
 
 
 def _rot(pose: sapien.Pose) -> np.ndarray:
     return pose.to_transformation_matrix()[:3, :3]
+
+
+def reachable_pixels(workspace: WorkspaceSpec) -> np.ndarray:
+    """``bool (H, W)``: the workspace's heightmap pixels where the clutter cell's arm reaches some grasp."""
+    from maniskill_pnp.cell.reach_map import ReachMap
+    from maniskill_pnp.cell.workspace import DEFAULT_ROBOT_BASE
+
+    return ReachMap.of(workspace, DEFAULT_ROBOT_BASE).any_line()
+
+
+def placement_problem(spec: ObjectSpec, pose: sapien.Pose, workspace: WorkspaceSpec, reach: np.ndarray | None) -> str:
+    """Why the object ``spec`` at ``pose`` cannot start a scene ("" when it can): its collision shapes reach past the
+    workspace square (by more than :data:`EDGE_TOL`) or below the table (by more than :data:`BELOW_TABLE_TOL`), or,
+    with ``reach`` (:func:`reachable_pixels`), its centre lies where the arm reaches no grasp."""
+    lo, hi = shape_bounds(world_shapes(spec, pose))
+    b = workspace.bounds
+    if (lo[:2] < b[:2, 0] - EDGE_TOL).any() or (hi[:2] > b[:2, 1] + EDGE_TOL).any():
+        return (f"reaches x {lo[0]:.3f}..{hi[0]:.3f}, y {lo[1]:.3f}..{hi[1]:.3f}: not wholly over the workspace "
+                f"x {b[0, 0]:.3f}..{b[0, 1]:.3f}, y {b[1, 0]:.3f}..{b[1, 1]:.3f} (the heightmap the agents see)")
+    if lo[2] < workspace.table_z - BELOW_TABLE_TOL:
+        return (f"reaches z {lo[2]:.4f}, below the table at {workspace.table_z} (by {(workspace.table_z - lo[2]) * 1000:.1f} "
+                f"mm; {BELOW_TABLE_TOL * 1000:.1f} mm allowed)")
+    if reach is not None:
+        row, col = (int(v) for v in workspace.world_to_pixel(np.asarray(pose.p, dtype=np.float64)))
+        if not (0 <= row < reach.shape[0] and 0 <= col < reach.shape[1] and reach[row, col]):
+            c = np.asarray(pose.p, dtype=np.float64)
+            return f"has its centre at x {c[0]:.3f}, y {c[1]:.3f}, where the arm reaches no top-down grasp"
+    return ""
 
 
 def shape_bounds(shapes) -> tuple[np.ndarray, np.ndarray]:
@@ -173,19 +204,11 @@ def check_layout(layout: Sequence[tuple[ObjectSpec, sapien.Pose]], workspace: Wo
             each moved).
     """
     layout = list(layout)
-    b = workspace.bounds
+    reach = reachable_pixels(workspace)
     for i, (spec, pose) in enumerate(layout):
-        lo, _ = shape_bounds(_world_shapes(spec, pose))
-        c = np.asarray(pose.p, dtype=np.float64)
-        if not workspace.contains_xy(c[:2]):
-            raise ValueError(
-                f"layout object {_name(i, spec)} has its centre at x {c[0]:.3f}, y {c[1]:.3f}: not over the workspace "
-                f"x {b[0, 0]:.3f}..{b[0, 1]:.3f}, y {b[1, 0]:.3f}..{b[1, 1]:.3f} (an object may overhang the edge, as in a "
-                f"drawn clutter, but its centre must be over the square)"
-            )
-        if lo[2] < workspace.table_z - BELOW_TABLE_TOL:
-            raise ValueError(f"layout object {_name(i, spec)} reaches z {lo[2]:.4f}, below the table at {workspace.table_z} "
-                             f"(by {(workspace.table_z - lo[2]) * 1000:.1f} mm; {BELOW_TABLE_TOL * 1000:.1f} mm allowed)")
+        problem = placement_problem(spec, pose, workspace, reach)
+        if problem:
+            raise ValueError(f"layout object {_name(i, spec)} {problem}")
     contacts = []
     for (i, j), d in sorted(contact_separations(layout).items()):
         if -d > penetration_tol:

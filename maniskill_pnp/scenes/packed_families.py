@@ -248,10 +248,15 @@ _FAMILY_PARTS = dict(arch_nest=_arch_nest, interlock=_interlock, tall_block=_tal
                      wedge_block=_wedge_block)
 
 
+def family_parts(rng: np.random.Generator, family: str) -> list[Part]:
+    """One draw of ``family``'s parts in its own frame (see the module docstring)."""
+    return _FAMILY_PARTS[family](_Drawer(rng))
+
+
 def _draw(rng: np.random.Generator, families: tuple[str, ...], workspace: WorkspaceSpec
           ) -> tuple[str, list[tuple[ObjectSpec, sapien.Pose]]]:
     family = families[int(rng.integers(len(families)))]
-    parts = _FAMILY_PARTS[family](_Drawer(rng))
+    parts = family_parts(rng, family)
     turn = rng.uniform(0.0, 2 * math.pi)
     centre = np.asarray(workspace.center) + rng.uniform(-0.02, 0.02, size=2)
     return family, place_parts(parts, turn, centre, workspace)

@@ -63,9 +63,9 @@ from maniskill_pnp.tasks.primitive_env import Decision, Judgement, PrimitiveStep
 from maniskill_pnp.tasks.registration import register_task
 from maniskill_pnp.scenes.scene_file import load_scene, save_scene
 from maniskill_pnp.cell.view_volume import ViewVolumes
-from maniskill_pnp.cell.workspace import WorkspaceSpec
+from maniskill_pnp.cell.workspace import DEFAULT_ROBOT_BASE, WorkspaceSpec
 
-ROBOT_BASE = (-0.615, 0.0, 0.0)
+ROBOT_BASE = DEFAULT_ROBOT_BASE
 logger = logging.getLogger(__name__)
 
 #: Why an action lost an object (it left the workspace other than into the bin): the ``info`` key that counts the

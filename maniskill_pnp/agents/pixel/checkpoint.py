@@ -107,7 +107,7 @@ def restore(payload: dict, run_dir: Path, *, replay, model, loss, optimizer, egr
 
 
 #: Config fields an exported agent may change: how it acts, not what it learned.
-ACTING_FIELDS = ("slide_margin", "mask_grasp_fit", "mask_fit_scale")
+ACTING_FIELDS = ("slide_margin", "mask_grasp_fit", "mask_fit_scale", "mask_keep_in", "mask_reach")
 
 
 def export_weights(checkpoint: Path, dest: Path, half: bool = True, **acting) -> Path:

@@ -183,6 +183,12 @@ class ClutterConfig(RunConfig):
     mask_grasp_fit: bool = False
     """Also mask out grasps whose open fingers, lowered to the grasp's depth, would strike the heightmap (a neighbour
     pressed against the object, or the object itself when wider than the jaws); needs ``mask_empty``."""
+    mask_keep_in: bool = True
+    """Also mask out slides that would carry material off the heightmap, where it is lost (the push judged from the
+    heightmap: see maniskill_pnp.agents.pixel.mask); needs ``mask_empty``, and only a G&S task has slides."""
+    mask_reach: bool = True
+    """Also mask out grasps and slides the arm cannot reach (its IK, per rotation and pixel: see
+    maniskill_pnp.cell.reach_map; about 1% of the default workspace, at its far corner); needs ``mask_empty``."""
     mask_fit_scale: int = 1
     """With ``mask_grasp_fit``, test the fit on a heightmap this many times finer than the network's (the env also
     observes it as ``fit_heightmap``, and the replay keeps the next state's for the bootstrap's mask): 2 halves the

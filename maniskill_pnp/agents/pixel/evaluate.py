@@ -128,7 +128,8 @@ class ClutterEvalConfig:
     of the results table); an episode cut by it is not completed. None (or a large value): no such cap."""
     scenarios: tuple[str, ...] = ()
     """Scenes to evaluate, one table row each: "train", an object count, "min", "medium", "max", "complicated",
-    "hard" (the hard test set: 32 scene files) or "hard_unseen" (24 scene files of families no training draws); none:
+    "hard" (the hard test set: 32 scene files), "hard_unseen" (24 scene files of families no training draws) or
+    "anywhere" (24 scene files of packed arrangements anywhere in the workspace, half near its edge); none:
     "train", or only the layout files when some are given."""
     layout_file: tuple[Path, ...] = ()
     """Scene files (YAML or JSON) of your own arrangements: one more table row, named after the file stems; episode
@@ -144,11 +145,17 @@ class ClutterEvalConfig:
     mask_fit_scale: int | None = None
     """Test the grasp fit on a heightmap this many times finer than the network's (see ``ClutterConfig.mask_fit_scale``;
     needs the fit test); None: as the run was trained."""
-    avoid_repeats: bool = False
+    mask_keep_in: bool | None = None
+    """Mask out slides that would carry material off the heightmap (see ``ClutterConfig.mask_keep_in``); None: the
+    agent's own setting (on unless it was exported without it)."""
+    mask_reach: bool | None = None
+    """Mask out grasps and slides the arm cannot reach (see ``ClutterConfig.mask_reach``); None: the agent's own
+    setting (on unless it was exported without it)."""
+    avoid_repeats: bool = True
     """Never repeat a failed action (a failed grasp, a slide that changed nothing), nor its neighbours (±2 px, ±1
     rotation), until the heightmap changes (:class:`~maniskill_pnp.agents.pixel.failure_memory.FailureMemory`): a
     failure that leaves the scene as it was leaves the greedy argmax where it was, so without this memory the policy
-    can repeat one failing action until the failure limit ends the episode."""
+    can repeat one failing action until the failure limit ends the episode. False: the plain argmax."""
     guard_force: float | None = None
     """Guarded grasps and slides (N): a grasp's descent or a slide's lowering stops, and the action fails, when contacts
     push the gripper up by more than this, as a real arm's collision reflex would (e.g. 20); None: unguarded, as in
@@ -323,8 +330,8 @@ def decide(actor: GreedyPixelActor, obs: dict, device: torch.device, exclude: Co
     if len(exclude):
         allowed = mask[0].reshape(-1).clone() if mask else torch.ones(values.numel(), dtype=torch.bool, device=values.device)
         allowed[torch.as_tensor(np.asarray(exclude, dtype=np.int64), device=values.device)] = False
-        if allowed.any():
-            action = values.reshape(-1).masked_fill(~allowed, float("-inf")).argmax()
+        if allowed.any():  # the actor's ranking (its primitive margins) over what is left
+            action = actor.choice_values(values.reshape(1, -1))[0].masked_fill(~allowed, float("-inf")).argmax()
     net = actor.q_network
     maps = values.reshape(len(net.primitives), net.num_rotations, *depth.shape[-2:])
     return int(action.reshape(-1)[0]), maps.float().cpu()
@@ -367,7 +374,7 @@ class EpisodeTally:
 
 
 def run_episode(env, actor: GreedyPixelActor, seed: int, device: torch.device, max_steps: int | None,
-                on_step=None, scenario: str = "train", avoid_repeats: bool = False, layout_index: int | None = None,
+                on_step=None, scenario: str = "train", avoid_repeats: bool = True, layout_index: int | None = None,
                 layout: str = "", actions_per_object: float | None = None,
                 drawn: list | None = None) -> tuple[dict, dict]:
     """One greedy episode of the gymnasium env ``env`` from ``reset(seed=seed)``.
@@ -537,7 +544,8 @@ def run(cfg: ClutterEvalConfig, on_episode=None, progress: bool = True) -> dict:
     # 1. load the policy (a bad file fails before any env is made)
     ckpt = cfg.checkpoint_path
     actor, train_cfg, counters = load_policy(ckpt, device, grasp_only=cfg.grasp_only, slide_margin=cfg.slide_margin,
-                                               mask_grasp_fit=cfg.mask_grasp_fit, mask_fit_scale=cfg.mask_fit_scale)
+                                               mask_grasp_fit=cfg.mask_grasp_fit, mask_fit_scale=cfg.mask_fit_scale,
+                                               mask_keep_in=cfg.mask_keep_in, mask_reach=cfg.mask_reach)
     primitives = actor.q_network.primitives
     env_cfg = train_cfg if cfg.num_objects is None else dataclasses.replace(train_cfg, num_objects=cfg.num_objects)
 
@@ -599,7 +607,7 @@ def run(cfg: ClutterEvalConfig, on_episode=None, progress: bool = True) -> dict:
     summary = dict(
         checkpoint=str(ckpt), metrics=metrics, episodes=episodes, wall_s=wall, device=str(device),
         eval_config=cfg.to_json(), train_config=train_cfg.to_json(), train_counters=counters,
-        action_mask=None if actor.action_mask is None else dataclasses.asdict(actor.action_mask),
+        action_mask=None if actor.action_mask is None else actor.action_mask.to_json(),
         files=dict(summary=str(json_path), table_md=str(md_path), table_csv=str(csv_path), episodes_csv=str(ep_path),
                    q_heatmaps=str(png_path), metrics_png=str(metrics_png)),
         strips=[str(p) for p in strips],

@@ -21,7 +21,7 @@ from maniskill_pnp.agents.pixel.config import ClutterConfig
 from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork
 from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
 from maniskill_pnp.agents.pixel.policy import GreedyPixelActor, make_pixel_policy
-from maniskill_pnp.cell.workspace import WorkspaceSpec
+from maniskill_pnp.cell.workspace import DEFAULT_ROBOT_BASE, WorkspaceSpec
 from maniskill_pnp.runtime import freeze_long_lived_objects
 
 #: Scenes an agent can be run on besides a positive object count: ``"train"`` (the config's object count), a
@@ -30,10 +30,12 @@ from maniskill_pnp.runtime import freeze_long_lived_objects
 #: :func:`~maniskill_pnp.scenes.hard_scenes.hard_layout_files`: 24 generated tightly packed scenes, at least half of
 #: their objects locked, and the 8 locking layouts; episode i plays file i mod 32) or ``"hard_unseen"`` (the 24 scene
 #: files of :func:`~maniskill_pnp.scenes.packed_families.unseen_scene_files`: tightly packed arrangements of families
-#: that no training draws).
-SCENARIOS = ("train", "min", "medium", "max", "complicated", "hard", "hard_unseen")
+#: that no training draws) or ``"anywhere"`` (the 24 scene files of
+#: :func:`~maniskill_pnp.scenes.anywhere_scenes.anywhere_scene_files`: packed arrangements of every family anywhere in
+#: the workspace, half of them within a slide's length of its edge).
+SCENARIOS = ("train", "min", "medium", "max", "complicated", "hard", "hard_unseen", "anywhere")
 #: The scenarios that play scene files.
-FILE_SCENARIOS = ("hard", "hard_unseen")
+FILE_SCENARIOS = ("hard", "hard_unseen", "anywhere")
 
 
 def is_scenario(name: str) -> bool:
@@ -64,6 +66,10 @@ def scenario_layout_files(name: str) -> list[Path] | None:
         from maniskill_pnp.scenes.packed_families import unseen_scene_files
 
         return unseen_scene_files()
+    if name == "anywhere":
+        from maniskill_pnp.scenes.anywhere_scenes import anywhere_scene_files
+
+        return anywhere_scene_files()
     return None
 
 
@@ -119,14 +125,26 @@ def make_model(cfg: ClutterConfig) -> MultiPrimitiveQNetwork:
 
 def make_action_mask(cfg: ClutterConfig, enabled: tuple[str, ...] | None = None) -> HeightmapActionMask | None:
     """The action mask of the config: with ``mask_empty``, grasps on material and slides from bare table towards
-    material within half a slide, and with ``mask_grasp_fit`` only grasps the open gripper fits; only the ``enabled``
+    material within half a slide, with ``mask_keep_in`` only slides that keep what they push on the heightmap, with
+    ``mask_reach`` only what the arm reaches, and
+    with ``mask_grasp_fit`` only grasps the open gripper fits; only the ``enabled``
     primitives (e.g. ``("grasp",)`` for a G&S agent restricted to grasps); None when neither applies."""
     if not cfg.mask_empty and enabled is None:
         return None
     return HeightmapActionMask.for_workspace(
         cfg.primitives, make_workspace(cfg), min_height=cfg.mask_min_height if cfg.mask_empty else None, enabled=enabled,
         grasp_fit=cfg.mask_grasp_fit,  # the config allows it only with mask_empty
+        keep_in=cfg.mask_keep_in and cfg.mask_empty and cfg.task == "grasp_slide",
+        reach=reach_pixels(cfg) if cfg.mask_reach and cfg.mask_empty else None,
     )
+
+
+def reach_pixels(cfg: ClutterConfig) -> torch.Tensor:
+    """``bool (R, H, W)``: the rotations and pixels of the config's heightmap that the clutter cell's arm reaches."""
+    from maniskill_pnp.cell.reach_map import ReachMap
+
+    ws = make_workspace(cfg)
+    return torch.from_numpy(ReachMap.of(ws, DEFAULT_ROBOT_BASE).pixels())
 
 
 def make_policy(cfg: ClutterConfig, model: MultiPrimitiveQNetwork, action_spec, eps: float | None = None):
@@ -139,12 +157,13 @@ def make_policy(cfg: ClutterConfig, model: MultiPrimitiveQNetwork, action_spec, 
 
 
 def load_policy(path: Path, device: torch.device, grasp_only: bool = False, slide_margin: float | None = None,
-                mask_grasp_fit: bool | None = None, mask_fit_scale: int | None = None,
-                ) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
+                mask_grasp_fit: bool | None = None, mask_fit_scale: int | None = None, mask_keep_in: bool | None = None,
+                mask_reach: bool | None = None) -> tuple[GreedyPixelActor, ClutterConfig, dict]:
     """The greedy actor of a checkpoint (network in eval mode on ``device``, the training's action mask, and with
     ``grasp_only`` only the grasp primitive enabled; ``slide_margin`` replaces the run's own, see
     :attr:`ClutterConfig.slide_margin`, ``mask_grasp_fit`` the run's :attr:`ClutterConfig.mask_grasp_fit` and
-    ``mask_fit_scale`` its :attr:`ClutterConfig.mask_fit_scale`), its config (the training's, with those mask fields
+    ``mask_fit_scale`` its :attr:`ClutterConfig.mask_fit_scale`, ``mask_keep_in`` and ``mask_reach`` the run's
+    :attr:`ClutterConfig.mask_keep_in` and :attr:`ClutterConfig.mask_reach`), its config (the training's, with those mask fields
     as the actor uses them: make its env from it) and counters.
 
     Raises:
@@ -165,7 +184,8 @@ def load_policy(path: Path, device: torch.device, grasp_only: bool = False, slid
     except RuntimeError as e:
         raise ValueError(f"checkpoint {path}: the weights do not fit the network of its config: {e}") from e
     model.to(device).eval()
-    acting = {k: v for k, v in dict(mask_grasp_fit=mask_grasp_fit, mask_fit_scale=mask_fit_scale).items() if v is not None}
+    acting = {k: v for k, v in dict(mask_grasp_fit=mask_grasp_fit, mask_fit_scale=mask_fit_scale,
+                                    mask_keep_in=mask_keep_in, mask_reach=mask_reach).items() if v is not None}
     if acting.get("mask_grasp_fit") is False:
         acting.setdefault("mask_fit_scale", 1)
     train_cfg = dataclasses.replace(train_cfg, **acting)  # raises ValueError on a scale without the fit test

@@ -12,6 +12,18 @@ ahead on its path, within ``slide_ahead_px`` along the push direction of its rot
 (:meth:`~maniskill_pnp.cell.workspace.WorkspaceSpec.slide_direction`). A start merely *near* material is not
 enough: the greedy policy of an early G&S run repeated a slide that began beside an object and pushed away from it.
 
+With ``slide_length_px`` no slide is offered that would push material off the heightmap (out of the workspace,
+where the object is lost). Along the push, within the pusher's width (``slide_band_px`` either side), the pusher
+meets material at some step ``t0`` of its ``L`` steps and carries it the remaining ``L - t0``; material further on is
+carried too where the push closes the gap to it, by what is left. Compacted against the pusher, the carried material
+then ends ``L + M`` steps from the start, ``M`` being the carried material's steps past the first contact. A slide
+whose carried material would end beyond the heightmap's edge is masked out. It reads only the heightmap: objects do
+not turn or spread sideways in this picture, so it is a first-order model of the push, not a simulation.
+
+With ``reach`` (the arm's :class:`~maniskill_pnp.cell.reach_map.ReachMap` read per rotation and pixel) only what the
+arm can reach is offered: grasps where its IK reaches the grasp and the pre-grasp, slides whose start and end it
+reaches.
+
 With ``grasp_fit`` a grasp must also *fit* where the heightmap shows it (the "predicted to fail" masks of SPOT):
 the open Panda gripper (its fingers' collision boxes and its hand's hull, from the robot's URDF) lowered straight down
 to the grasp's fingertip height (:meth:`~maniskill_pnp.cell.workspace.WorkspaceSpec.grasp_tcp_height` of the height at
@@ -36,7 +48,8 @@ Example:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 import functools
 from functools import cached_property
 
@@ -74,6 +87,11 @@ class HeightmapActionMask:
         grasp_depth: How far below the height at the pixel the fingertip TCP goes (m), for ``grasp_fit``.
         min_tip_height: The fingertip TCP never goes below this height above the table (m), for ``grasp_fit``.
         fit_tolerance: A gripper point may be this far (m) below a height of the map and still count as clear.
+        slide_length_px: The slide's length in pixels: with it, slides that would carry material off the heightmap
+            are masked out (see the module docstring); None: no such test.
+        slide_band_px: Half the pusher's width across the push, in pixels, for ``slide_length_px``.
+        reach: ``bool (R, H, W)``: the rotations and pixels the arm reaches (:meth:`ReachMap.pixels
+            <maniskill_pnp.cell.reach_map.ReachMap.pixels>`); None: no reach test.
     """
 
     primitives: tuple[str, ...]
@@ -87,6 +105,9 @@ class HeightmapActionMask:
     grasp_depth: float = 0.02
     min_tip_height: float = 0.012
     fit_tolerance: float = FIT_TOLERANCE
+    slide_length_px: int | None = None
+    slide_band_px: int = 3
+    reach: torch.Tensor | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         object.__setattr__(self, "primitives", tuple(self.primitives))
@@ -105,6 +126,16 @@ class HeightmapActionMask:
             object.__setattr__(self, "enabled", tuple(self.enabled))
             if not self.enabled or set(self.enabled) - set(self.primitives):
                 raise ValueError(f"enabled must be a non-empty subset of {self.primitives}, got {self.enabled!r}")
+        if self.slide_length_px is not None and not (isinstance(self.slide_length_px, int) and self.slide_length_px >= 1):
+            raise ValueError(f"slide_length_px must be a positive int or None, got {self.slide_length_px!r}")
+        if not (isinstance(self.slide_band_px, int) and self.slide_band_px >= 0):
+            raise ValueError(f"slide_band_px must be an int >= 0, got {self.slide_band_px!r}")
+        if self.reach is not None:
+            reach = torch.as_tensor(self.reach, dtype=torch.bool)
+            if reach.ndim != 3 or reach.shape[0] != self.num_rotations:
+                raise ValueError(f"reach must be (num_rotations={self.num_rotations}, H, W) booleans, got shape "
+                                 f"{tuple(reach.shape)}")
+            object.__setattr__(self, "reach", reach)
         if self.grasp_fit and self.min_height is None:
             raise ValueError("grasp_fit needs the material test (a min_height)")
         if not self.pixel_size > 0 or self.min_tip_height < 0 or self.fit_tolerance < 0:
@@ -113,13 +144,25 @@ class HeightmapActionMask:
                 f"{self.min_tip_height!r}, {self.fit_tolerance!r}"
             )
 
+    def to_json(self) -> dict:
+        """The mask's settings as JSON values; ``reach`` as the share of the (rotation, pixel) grasps it keeps."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "reach"}
+        out["reach"] = None if self.reach is None else round(float(self.reach.float().mean()), 4)
+        return out
+
     @classmethod
-    def for_workspace(cls, primitives, workspace: WorkspaceSpec, ahead_fraction: float = 0.5, **kwargs):
+    def for_workspace(cls, primitives, workspace: WorkspaceSpec, ahead_fraction: float = 0.5, keep_in: bool = False,
+                      **kwargs):
         """The mask of a workspace: slides start clear of material by its ``slide_clearance`` and must meet material
-        within ``ahead_fraction`` of its ``slide_length`` (so a slide moves what it meets by at least the rest)."""
+        within ``ahead_fraction`` of its ``slide_length`` (so a slide moves what it meets by at least the rest); with
+        ``keep_in``, slides that would carry material off the heightmap are masked out (the slide's length and the
+        closed Panda fingers' width across the push, in pixels)."""
         if not 0 < ahead_fraction <= 1:
             raise ValueError(f"ahead_fraction must be in (0, 1], got {ahead_fraction!r}")
         px = workspace.pixel_size
+        if keep_in:
+            kwargs.update(slide_length_px=max(1, int(round(workspace.slide_length / px))),
+                          slide_band_px=int(round(_pusher_half_width() / px)))
         return cls(
             primitives, workspace.num_rotations, slide_clear_px=int(round(workspace.slide_clearance / px)),
             slide_ahead_px=max(1, int(round(ahead_fraction * workspace.slide_length / px))), pixel_size=px,
@@ -197,6 +240,92 @@ class HeightmapActionMask:
             kernels[side] = lines
         return kernels
 
+    @cached_property
+    def _push_rays(self) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The pusher's band and path, built once per mask: ``(band, steps)``. ``band`` ``(R, 1, K, K)``: per rotation,
+        a line kernel across the push direction, ``slide_band_px`` either side of the centre (both sides push along
+        one line). ``steps[side]`` ``(R, T, 2)``: the (row, col) offsets of the steps 1..T along each rotation's push,
+        ``T`` three slide lengths."""
+        b, n = self.slide_band_px, 3 * self.slide_length_px
+        ws = WorkspaceSpec(num_rotations=self.num_rotations)
+        across = torch.linspace(-b, b, 4 * b + 1, dtype=torch.float64)
+        band = torch.zeros(self.num_rotations, 1, 2 * b + 1, 2 * b + 1)
+        t = torch.arange(1, n + 1, dtype=torch.float64)
+        steps = {side: torch.zeros(self.num_rotations, n, 2, dtype=torch.long) for side in ("left", "right")}
+        for rot in range(self.num_rotations):
+            dx, dy = ws.slide_direction(rot, "left")  # columns follow world x, rows world y
+            band[rot, 0, torch.round(b + across * dx).long(), torch.round(b - across * dy).long()] = 1.0
+            for side, sign in (("left", 1.0), ("right", -1.0)):
+                steps[side][rot] = torch.stack([torch.round(sign * t * dy), torch.round(sign * t * dx)], dim=1).long()
+        return band, steps
+
+    @functools.lru_cache(maxsize=8)
+    def _push_paths(self, side: str, h: int, w: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """For an ``h`` x ``w`` map: ``(offsets, off)``. ``offsets`` ``(R, T)``: the steps along each rotation's push as
+        offsets into the map padded by ``T`` on every side, flattened; ``off`` ``(R, h, w)``: per start pixel, the
+        first step whose pixel lies off the map (``T + 1`` where none does)."""
+        steps = self._push_rays[1][side]
+        n = steps.shape[1]
+        offsets = steps[..., 0] * (w + 2 * n) + steps[..., 1]
+        rows = torch.arange(h)[None, :, None, None] + steps[:, None, None, :, 0]  # (R, h, 1, T)
+        cols = torch.arange(w)[None, None, :, None] + steps[:, None, None, :, 1]  # (R, 1, w, T)
+        outside = (rows < 0) | (rows >= h) | (cols < 0) | (cols >= w)  # (R, h, w, T)
+        off = torch.where(outside.any(dim=-1), outside.float().argmax(dim=-1) + 1, torch.tensor(n + 1))
+        return offsets, off
+
+    def slides_keep_in(self, occupied: torch.Tensor, side: str, where: torch.Tensor) -> torch.Tensor:
+        """``bool (N, R, H, W)``: at the slide starts ``where`` ``(N, R, H, W)``, whether the slide to ``side`` keeps
+        the material it carries on the heightmap (see the module docstring); True elsewhere. ``occupied``
+        ``(N, 1, H, W)``: the material pixels."""
+        keep = torch.ones_like(where)
+        at = where.nonzero(as_tuple=True)
+        if not len(at[0]):
+            return keep
+        band = self._push_rays[0]
+        n, _, h, w = occupied.shape
+        dev, length, r = occupied.device, self.slide_length_px, self.num_rotations
+        offsets, off = (v.to(dev) for v in self._push_paths(side, h, w))
+        t_max = offsets.shape[1]
+        # material under the pusher's band, on the map padded with bare table
+        ahead = F.conv2d(occupied.float(), band.to(dev), padding=self.slide_band_px) > 0  # (N, R, H, W)
+        ahead = F.pad(ahead, (t_max, t_max, t_max, t_max)).flatten()
+        size = (h + 2 * t_max) * (w + 2 * t_max)
+        base = (at[0] * r + at[1]) * size + (at[2] + t_max) * (w + 2 * t_max) + at[3] + t_max
+        met = ahead[base[:, None] + offsets[at[1]]]  # (K, T): material under the pusher at each step
+        contact = met[:, :length].any(dim=1)
+        t0 = met[:, :length].to(torch.uint8).argmax(dim=1, keepdim=True) + 1  # the first contact's step (1-based)
+        gaps = torch.cumsum(~met, dim=1)  # empty steps up to each step
+        steps = torch.arange(1, t_max + 1, device=dev)
+        carried = met & (steps > t0) & (gaps - gaps.gather(1, t0 - 1) < length - t0)
+        front = length + carried.sum(dim=1)  # the step where the carried material's leading pixel ends
+        keep[at] = ~(contact & (front >= off[at[1], at[2], at[3]]))
+        return keep
+
+    def _reached(self, name: str, device: torch.device) -> torch.Tensor:
+        """``bool (R, H, W)``: where primitive ``name`` is within the arm's reach: a grasp where :attr:`reach` says so,
+        a slide where its start and its end (``slide_length_px`` on, or the ahead test's reach, along its push; an end
+        off the map counts as the nearest pixel) are."""
+        cache = self.__dict__.setdefault("_reached_maps", {})  # per instance: masks equal but for their reach differ
+        if (name, device) not in cache:
+            cache[name, device] = self._reach_of(name).to(device)
+        return cache[name, device]
+
+    def _reach_of(self, name: str) -> torch.Tensor:
+        reach = self.reach
+        if name == GRASP:
+            return reach
+        r, h, w = reach.shape
+        ws = WorkspaceSpec(num_rotations=r)
+        length = self.slide_length_px or 2 * self.slide_ahead_px
+        rows, cols = torch.arange(h)[:, None], torch.arange(w)[None, :]
+        ends = torch.zeros_like(reach)
+        for rot in range(r):
+            dx, dy = ws.slide_direction(rot, name.removesuffix("_slide"))
+            er = (rows + round(length * dy)).clamp(0, h - 1).expand(h, w)
+            ec = (cols + round(length * dx)).clamp(0, w - 1).expand(h, w)
+            ends[rot] = reach[rot][er, ec]
+        return reach & ends
+
     def pixel_masks(self, height: torch.Tensor, fit: torch.Tensor | None = None) -> torch.Tensor:
         """Per-primitive, per-rotation pixel masks ``(*B, P, R, H, W)`` of heights ``(*B, H, W)`` (m above the table);
         ``fit`` ``(*B, k·H, k·W)``: the fit heightmap the grasp-fit test reads (see :meth:`grasp_fits`)."""
@@ -222,9 +351,15 @@ class HeightmapActionMask:
             elif name == GRASP or self.min_height is None:
                 masks.append(occupied.expand(n, rots, h, w))
             else:
-                kernels = self._ahead_kernels[name.removesuffix("_slide")].to(flat.device)
+                side = name.removesuffix("_slide")
+                kernels = self._ahead_kernels[side].to(flat.device)
                 ahead = F.conv2d(occupied.float(), kernels, padding=self.slide_ahead_px) > 0
-                masks.append(clear & ahead)
+                allowed = clear & ahead
+                if self.slide_length_px is not None:
+                    allowed = allowed & self.slides_keep_in(occupied, side, allowed)
+                masks.append(allowed)
+            if self.reach is not None and (self.enabled is None or name in self.enabled):
+                masks[-1] = masks[-1] & self._reached(name, flat.device)
         if self.grasp_fit and GRASP in self.primitives and (self.enabled is None or GRASP in self.enabled):
             # Where no grasp fits and no other primitive may act, grasps fall back to the material test.
             g = self.primitives.index(GRASP)
@@ -250,6 +385,16 @@ class HeightmapActionMask:
     def from_observation(self, observation: torch.Tensor, fit: torch.Tensor | None = None) -> torch.Tensor:
         """Flat mask of network inputs ``(*B, 4, H, W)`` (height in channel 3) and their fit heightmaps."""
         return self(observation[..., 3, :, :], fit)
+
+
+@functools.cache
+def _pusher_half_width() -> float:
+    """Half the width (m) of the closed Panda fingers across a slide's push: the extent along the jaws of the gripper's
+    points within 2 cm of the fingertips."""
+    from maniskill_pnp.scenes.grasp_feasibility import panda_gripper
+
+    points = panda_gripper(opening=0.0).points
+    return float(np.abs(points[points[:, 2] < 0.02, 1]).max())
 
 
 @functools.cache

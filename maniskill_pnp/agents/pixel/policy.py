@@ -86,7 +86,7 @@ class GreedyPixelActor(nn.Module):
             raise ValueError(f"primitive margins must be finite numbers, one per primitive, got {primitive_margins!r}")
         self.register_buffer("primitive_margins", margins if margins.any() else None, persistent=False)
 
-    def _choice_values(self, values: torch.Tensor) -> torch.Tensor:
+    def choice_values(self, values: torch.Tensor) -> torch.Tensor:
         """``values`` less each primitive's margin (the values the argmax ranks)."""
         if self.primitive_margins is None:
             return values
@@ -101,7 +101,7 @@ class GreedyPixelActor(nn.Module):
         batch = x.shape[:-3]
         maps = self.q_network(x.reshape(-1, *x.shape[-3:]))
         values = maps.reshape(*batch, -1)
-        ranked = self._choice_values(values)
+        ranked = self.choice_values(values)
         if self.action_mask is None:
             return values, ranked.argmax(dim=-1)
         height = depth.to(torch.float32)

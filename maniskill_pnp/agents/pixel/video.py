@@ -46,6 +46,9 @@ class ClutterVideoConfig:
     """Cap on the decisions filmed (the episode may end earlier: cleared, or truncated by the task)."""
     grasp_only: bool = False
     """Mask out every primitive but grasps (a G&S agent filmed as a grasp-only agent)."""
+    avoid_repeats: bool = True
+    """Never repeat a failed action nor its neighbours until the heightmap changes, as ``eval-clutter`` acts (see
+    :class:`~maniskill_pnp.agents.pixel.failure_memory.FailureMemory`); False: the plain argmax."""
     frame_every: int = 3
     """Keep one video frame every this many control steps (20 Hz control)."""
     fps: int = 20
@@ -105,9 +108,10 @@ def run(cfg: ClutterVideoConfig) -> dict:
         obs, info = env.reset(seed=cfg.seed)
         objects = int(info["num_objects"])
         env.unwrapped.set_control_step_callback(grab)
+        memory = FailureMemory(env.unwrapped.action_layout, env.unwrapped.primitive_names) if cfg.avoid_repeats else None
         done = False
         while not done and len(decisions) < cfg.max_steps:
-            action, maps = decide(actor, obs, device)
+            action, maps = decide(actor, obs, device, exclude=() if memory is None else memory.excluded())
             decision = describe(env, action, maps.numpy(), obs, len(decisions))
             panels = decision_panels(decision, size)
             scene = env.render()[0].cpu().numpy()
@@ -117,6 +121,8 @@ def run(cfg: ClutterVideoConfig) -> dict:
             obs, reward, terminated, truncated, info = env.step(action)
             decision["outcome_lines"] = outcome_lines(info, float(reward.item()), decision["primitive"])
             decisions.append(decision)
+            if memory is not None:
+                memory.observe(action, int(info["consecutive_failures"]) > 0, obs["depth_heightmap"][0].cpu().numpy())
             records.append(dict(decision=decision["index"], primitive=decision["primitive"], rotation=decision["rotation"],
                                 row=decision["row"], col=decision["col"], q=decision["q"], reward=float(reward.item()),
                                 grasp_success=bool(info["grasp_success"]), place_success=bool(info["place_success"]),

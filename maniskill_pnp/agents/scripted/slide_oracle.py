@@ -14,7 +14,8 @@ own pixel actions, so the physics decides the outcome.
   the closed fingers' collision geometry along the push on the objects' height columns; a slide qualifies when the
   pusher comes down on nothing and meets that object alone. The object is moved by the push that is left after the
   contact, its path checked free of the others (and inside the workspace), and the grasp check is run on the
-  layout so predicted. The oracle takes the slide predicted to unlock the most objects (then the one best lined up
+  layout so predicted. A slide that the agents' mask would not offer because it carries material off the heightmap
+  (:meth:`~maniskill_pnp.agents.pixel.mask.HeightmapActionMask.slides_keep_in`) is not taken either. The oracle takes the slide predicted to unlock the most objects (then the one best lined up
   with a face of the object); if no slide qualifies it grasps as the grasp-only oracle does.
 
 Example:
@@ -29,7 +30,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
+from maniskill_pnp.agents.pixel.mask import HeightmapActionMask
 from maniskill_pnp.agents.scripted.clutter_oracle import HeightmapGraspOracle
 from maniskill_pnp.scenes.grasp_feasibility import _maps, grasp_feasibility, panda_gripper
 
@@ -67,6 +70,7 @@ class FeasibleGraspOracle:
         self.pusher = closed.points
         self.last: OracleChoice | None = None
         self.yaw_step = 360.0 / self.ws.num_rotations  # the action's jaw lines (r and r + R/2 are one line)
+        self.mask = HeightmapActionMask.for_workspace(env.PRIMITIVES, self.ws, keep_in=True) if slides else None
 
     def __call__(self, obs) -> int:
         height = np.asarray(obs["depth_heightmap"][0], dtype=np.float64).squeeze()
@@ -86,7 +90,7 @@ class FeasibleGraspOracle:
             self.last = OracleChoice("grasp", action, keys[g.index])
             return action
         if self.slides:
-            best = self._best_slide(layout)
+            best = self._best_slide(layout, height)
             if best is not None:
                 action, k, unlocked = best
                 self.last = OracleChoice("slide", action, keys[k], unlocked)
@@ -99,8 +103,11 @@ class FeasibleGraspOracle:
         return action
 
     # ------------------------------------------------------------------ slides
-    def _best_slide(self, layout) -> tuple[int, int, int] | None:
+    def _best_slide(self, layout, height: np.ndarray) -> tuple[int, int, int] | None:
         ws = self.ws
+        occupied = torch.as_tensor(height, dtype=torch.float32)[None, None] > self.mask.min_height
+        everywhere = torch.ones(1, ws.num_rotations, *height.shape, dtype=torch.bool)
+        keeps_in = {side: self.mask.slides_keep_in(occupied, side, everywhere)[0].numpy() for side in ("left", "right")}
         maps = _maps(layout, ws.table_z, CHECK["resolution"])
         tip_z = ws.table_z + ws.min_tip_height
         low = self.pusher[self.pusher[:, 2] + tip_z < float(maps.top.max())]  # the pusher parts objects can meet
@@ -127,6 +134,10 @@ class FeasibleGraspOracle:
                         if not (x0 <= moved[:, 0].min() and moved[:, 0].max() <= x1 and y0 <= moved[:, 1].min()
                                 and moved[:, 1].max() <= y1) or self._path_blocked(maps, present, others, shift):
                             continue
+                        row, col = ws.world_to_pixel(np.array([*start, 0.0]))
+                        if not (0 <= row < height.shape[0] and 0 <= col < height.shape[1]
+                                and keeps_in[side][rot, row, col]):
+                            continue  # the heightmap's view of the push carries material off it
                         predicted = list(layout)
                         p = np.array(pose.p, dtype=np.float64)
                         p[:2] += shift
@@ -136,7 +147,6 @@ class FeasibleGraspOracle:
                         face = abs(math.remainder(math.atan2(d[1], d[0]) - yaw_obj, math.pi / 2))
                         key = (unlocked, -face, -abs(offset))
                         if best_key is None or key > best_key:
-                            row, col = ws.world_to_pixel(np.array([*start, 0.0]))
                             action = int(self.env.action_layout.encode(1 if side == "left" else 2, rot, int(row), int(col)))
                             best, best_key = (action, k, unlocked), key
         if best is None or best[2] == 0:
