@@ -52,3 +52,31 @@ def test_memory_resets_and_checks_its_arguments():
         FailureMemory(LAYOUT, PRIMITIVES, radius_px=-1)
     with pytest.raises(ValueError, match="primitive names"):
         FailureMemory(LAYOUT, ("grasp",))
+
+
+def test_the_rechoice_after_a_failure_keeps_the_slide_margin():
+    """With a failed grasp ruled out, the greedy choice ranks what is left as the actor does: a slide needs to beat the
+    best remaining grasp by the actor's slide margin."""
+    import torch
+    from torch import nn
+
+    from maniskill_pnp.agents.pixel.evaluate import decide
+    from maniskill_pnp.agents.pixel.policy import GreedyPixelActor
+
+    layout = PixelActionLayout(3, 2, 4, 4)
+    values = torch.zeros(layout.shape)
+    values[0, 0, 1, 1] = 1.0  # the best grasp, which failed
+    values[0, 1, 2, 2] = 0.6  # the next grasp
+    values[1, 0, 3, 3] = 0.9  # a slide: beats the next grasp, but by less than the margin
+
+    class Fixed(nn.Module):
+        primitives, num_rotations = PRIMITIVES, 2
+
+        def forward(self, x):
+            return values[None].expand(x.shape[0], *values.shape)
+
+    actor = GreedyPixelActor(Fixed(), primitive_margins=(0.0, 0.5, 0.5))
+    obs = dict(color_heightmap=torch.zeros(1, 4, 4, 3, dtype=torch.uint8), depth_heightmap=torch.zeros(1, 4, 4))
+    assert decide(actor, obs, torch.device("cpu"))[0] == layout.encode(0, 0, 1, 1)
+    action, _ = decide(actor, obs, torch.device("cpu"), exclude=[layout.encode(0, 0, 1, 1)])
+    assert action == layout.encode(0, 1, 2, 2)

@@ -23,6 +23,7 @@ from maniskill_pnp.agents.pixel.checkpoint import checkpoint_file
 from maniskill_pnp.agents.pixel.decision_strip import (PANEL, decision_panels, decisions_strip, describe, failure_reason,
                                                         outcome_lines)
 from maniskill_pnp.agents.pixel.evaluate import decide
+from maniskill_pnp.agents.pixel.failure_memory import FailureMemory
 from maniskill_pnp.agents.pixel.factories import SCENARIOS, is_scenario, load_policy, make_env
 from maniskill_pnp.agents.run_io import require_positive, write_json
 from maniskill_pnp.agents.video_frames import even_frame
