@@ -83,7 +83,7 @@ def test_layout_validation():
     cx, cy = WS.center
     with pytest.raises(ValueError, match="overlap"):
         validate_layout([(cube, (cx, cy, 0.02)), (cube, (cx + 0.03, cy, 0.02))], WS)
-    with pytest.raises(ValueError, match="not over the workspace"):
+    with pytest.raises(ValueError, match="not wholly over the workspace"):
         validate_layout([(cube, (cx + 0.3, cy, 0.02))], WS)
     with pytest.raises(ValueError, match="at least one"):
         validate_layout([], WS)

@@ -80,7 +80,8 @@ def test_the_agents_mask_leaves_out_grasps_and_slides_out_of_reach(reach):
 
 
 def test_an_unreadable_cache_file_is_computed_again(tmp_path, monkeypatch):
-    """A table that cannot be read is not trusted: it is computed again (here a tiny stand-in computation)."""
+    """A table that is neither shipped nor cached is computed only on request (the scene checks and the mask then skip
+    the reach); an unreadable cache file is not trusted (here a tiny stand-in computation)."""
     import maniskill_pnp.cell.reach_map as rm
 
     monkeypatch.setenv("MANISKILL_PNP_CACHE", str(tmp_path))
@@ -90,6 +91,7 @@ def test_an_unreadable_cache_file_is_computed_again(tmp_path, monkeypatch):
     (tmp_path / "reach" / f"{key}.npy").write_bytes(b"not a numpy file")
     calls = []
     monkeypatch.setattr(rm, "compute_table", lambda t, arm, progress: calls.append(t) or np.zeros((LINES, 3, 5), bool))
-    table = ReachTable.of(tip, progress=False)
+    assert ReachTable.of(tip, progress=False) is None and calls == []  # not computed unasked
+    table = ReachTable.of(tip, compute=True, progress=False)
     assert calls == [tip] and table.reachable.shape == (LINES, 3, 5)
     assert ReachTable.of(tip, progress=False).reachable.shape == (LINES, 3, 5) and calls == [tip]  # cached now

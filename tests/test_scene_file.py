@@ -124,11 +124,11 @@ def test_save_and_load_round_trip(tmp_path, suffix, frame, orientation):
 
 def test_workspace_frame_follows_the_workspace(tmp_path):
     path = _write(tmp_path / "two.yaml", VALID)
-    moved = WorkspaceSpec(center=(0.1, 0.2), table_z=0.05, heightmap_size=64, pixel_size=0.448 / 64)
+    moved = WorkspaceSpec(center=(0.0, 0.05), table_z=0.05, heightmap_size=64, pixel_size=0.448 / 64)  # in reach
     a, b = load_scene(path, WS), load_scene(path, moved)
-    np.testing.assert_allclose(np.asarray(b[0][1].p) - a[0][1].p, [0.1 + 0.06, 0.2 + 0.1, 0.05], atol=1e-9)
+    np.testing.assert_allclose(np.asarray(b[0][1].p) - a[0][1].p, [0.0 + 0.06, 0.05 + 0.1, 0.05], atol=1e-9)
     world = dict(VALID, frame="world")
-    with pytest.raises(SceneFileError, match="not over the workspace"):  # the same numbers as world coordinates
+    with pytest.raises(SceneFileError, match="not wholly over the workspace"):  # the same numbers as world coordinates
         load_scene(_write(tmp_path / "world.yaml", dict(world, objects=[dict(VALID["objects"][1], position=[0.3, 0.3, 0.02])])), WS)
 
 
@@ -175,7 +175,7 @@ BAD = [
     (lambda d: d.update(objects=[]), r"objects: must be a non-empty list"),
     (lambda d: d["objects"][1].update(position=[-0.07, 0.0, 0.02]),
      r"objects\[0\] \(cuboid\) and objects\[1\] \(cuboid\) overlap: their shapes interpenetrate by 40\.0 mm"),
-    (lambda d: d["objects"][1].update(position=[0.3, 0.0, 0.02]), r"objects\[1\] \(cuboid\) has its centre at x .*not over the workspace"),
+    (lambda d: d["objects"][1].update(position=[0.3, 0.0, 0.02]), r"objects\[1\] \(cuboid\) reaches x .*not wholly over the workspace"),
 ]
 
 
@@ -457,7 +457,7 @@ def test_bad_layout_file_options(env_id, kwargs, error, match):
 def test_a_scene_that_does_not_fit_the_workspace_names_the_file(tmp_path):
     small = WorkspaceSpec(heightmap_size=16, pixel_size=0.001, num_rotations=4, spawn_margin=0.001)  # a 1.6 cm square
     path = complicated_layout_files()[0]
-    with pytest.raises(SceneFileError, match=r"row_of_three.yaml: objects\[0\] \(cuboid\) has its centre at"):
+    with pytest.raises(SceneFileError, match=r"row_of_three.yaml: objects\[0\] \(cuboid\) reaches x .* not wholly over the workspace"):
         gym.make("ClutterGrasp-v1", workspace=small, layout_file=path, **CPU)
 
 

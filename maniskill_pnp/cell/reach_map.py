@@ -17,9 +17,10 @@ which top-down grasps the arm reaches:
   decide; near the border of the reach a pixel may come out either way, within about a sample step).
 
 The table depends only on the fingertips' height relative to the base, so one serves every workspace on the same
-table. It is computed once (a few minutes) and cached on disk under ``cache_dir("reach")``; the table of the clutter
-tasks' cell ships with the package (``maniskill_pnp/cell/reach/``, written by ``python -m
-maniskill_pnp.cell.reach_map``). A slide reaches where its start and its end do (the closed fingers near the table,
+table. The clutter tasks' cell's ships with the package (``maniskill_pnp/cell/reach/``, written by ``python -m
+maniskill_pnp.cell.reach_map``). Another table height has none until ``python -m maniskill_pnp.cell.reach_map
+--tip-height H`` computes it (about 10 minutes on one core) into the cache (``cache_dir("reach")``); until then the
+reach is not checked there, and a warning says so once. A slide reaches where its start and its end do (the closed fingers near the table,
 on the same jaw line).
 """
 
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +41,8 @@ from maniskill_pnp.planning.collision import CollisionWorld
 from maniskill_pnp.planning.kinematics import Kinematics
 from maniskill_pnp.planning.primitives import MotionPrimitives, grasp_pose, grasp_twins
 from maniskill_pnp.planning.robot import ArmSpec, panda_spec
+
+logger = logging.getLogger(__name__)
 
 #: Spacing (m) of the sampled grasp positions.
 SAMPLE_STEP = 0.015
@@ -64,8 +68,10 @@ class ReachTable:
     reachable: np.ndarray
 
     @classmethod
-    def of(cls, tip_height: float, arm: ArmSpec | None = None, progress: bool = True) -> "ReachTable":
-        """The table of fingertips ``tip_height`` (m) above the base: shipped, cached, or computed and cached."""
+    def of(cls, tip_height: float, arm: ArmSpec | None = None, compute: bool = False,
+           progress: bool = True) -> "ReachTable | None":
+        """The table of fingertips ``tip_height`` (m) above the base, shipped or cached; without one, computed and cached
+        with ``compute`` (minutes), else None (and a warning naming the command that computes it)."""
         arm = arm or panda_spec()
         key = table_key(tip_height, arm)
         path = cache_dir("reach") / f"{key}.npy"
@@ -75,6 +81,9 @@ class ReachTable:
                     return cls(np.load(known))
                 except (OSError, ValueError):
                     pass  # an unreadable file is computed again
+        if not compute:
+            _warn_missing(tip_height)
+            return None
         reachable = compute_table(tip_height, arm, progress=progress)
         tmp = path.with_name(f"{key}.{np.random.default_rng().integers(1 << 30)}.tmp.npy")
         np.save(tmp, reachable)
@@ -114,10 +123,12 @@ class ReachMap:
 
     @classmethod
     def of(cls, workspace: WorkspaceSpec, base: tuple[float, float, float] = DEFAULT_ROBOT_BASE,
-           arm: ArmSpec | None = None, progress: bool = True) -> "ReachMap":
-        """The map of ``workspace`` for an arm standing at ``base``."""
+           arm: ArmSpec | None = None, compute: bool = False, progress: bool = True) -> "ReachMap | None":
+        """The map of ``workspace`` for an arm standing at ``base``; None where its table is neither shipped nor
+        cached and ``compute`` is off (see :meth:`ReachTable.of`)."""
         tip = workspace.table_z + workspace.min_tip_height - float(base[2])
-        return cls(workspace, tuple(float(v) for v in base), ReachTable.of(tip, arm, progress=progress))
+        table = ReachTable.of(tip, arm, compute=compute, progress=progress)
+        return None if table is None else cls(workspace, tuple(float(v) for v in base), table)
 
     def pixels(self, num_rotations: int | None = None, size: int | None = None) -> np.ndarray:
         """``bool (R, H, W)``: whether a grasp at each rotation and heightmap pixel is reachable; ``size`` pixels per
@@ -141,6 +152,18 @@ class ReachMap:
         """``(yaw in degrees, share of the heightmap's pixels reached)`` per jaw line."""
         cells = self.pixels(num_rotations=2 * LINES)[:LINES]
         return [(180.0 * k / LINES, float(cells[k].mean())) for k in range(LINES)]
+
+
+_warned: set[float] = set()
+
+
+def _warn_missing(tip_height: float) -> None:
+    if round(tip_height, 6) in _warned:
+        return
+    _warned.add(round(tip_height, 6))
+    logger.warning("no reach table for fingertips %.4f m above the robot base (a workspace on another table): actions "
+                   "and scenes are not checked for reach; `python -m maniskill_pnp.cell.reach_map --tip-height %.4f` "
+                   "computes and caches it (a few minutes)", tip_height, tip_height)
 
 
 def compute_table(tip_height: float, arm: ArmSpec, progress: bool = True) -> np.ndarray:
@@ -179,10 +202,18 @@ def table_key(tip_height: float, arm: ArmSpec | None = None) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Write the shipped table of the clutter tasks' cell (every workspace on its table reads it)."""
+    """Compute a reach table: the clutter cell's into the package, or, with ``--tip-height``, another into the cache."""
     import argparse
 
-    argparse.ArgumentParser(description="compute the reach table of the clutter cell's arm into the package").parse_args(argv)
+    parser = argparse.ArgumentParser(description="compute the reach table of the clutter cell's arm (into the package), "
+                                                 "or of fingertips at another height above its base (into the cache)")
+    parser.add_argument("--tip-height", type=float, default=None,
+                        help="fingertips' height above the robot base (m); default: the clutter cell's, shipped")
+    args = parser.parse_args(argv)
+    if args.tip_height is not None:
+        table = ReachTable.of(args.tip_height, compute=True)
+        print(f"reach table at {args.tip_height} m: {table.reachable.mean():.1%} of the samples reached (cached)")
+        return
     ws = WorkspaceSpec()
     tip = ws.table_z + ws.min_tip_height - DEFAULT_ROBOT_BASE[2]
     SHIPPED_DIR.mkdir(exist_ok=True)

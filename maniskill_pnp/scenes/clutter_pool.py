@@ -104,7 +104,7 @@ class ClutterPool:
             self.arrangement_slots = [[self.random_count + i for i in index] for index in slots]
             self.specs = self.specs + specs
         self.names = [f"obj_{i}_{spec.kind}" for i, spec in enumerate(self.specs)]
-        self._reach: np.ndarray | None = None  # the reachable heightmap pixels, read on first use
+        self._reach: np.ndarray | bool | None = None  # the reachable heightmap pixels, read on first use (False: none)
         self.actors: list = []
         n = self.num_envs
         #: Per env: the pool indices of the episode's objects, their names and actors, and its layout (-1: random).
@@ -197,9 +197,12 @@ class ClutterPool:
         """Whether env ``env``'s object ``j`` rests partly beyond the workspace's edge or out of the arm's reach."""
         if self._reach is None:
             self._reach = reachable_pixels(self.workspace)
+            if self._reach is None:  # no reach table at this table height: only the edge is checked
+                self._reach = False
         i, actor = self.active_index[env][j], self.active_actors[env][j]
         pose = actor_pose(actor, env)
-        return bool(placement_problem(self.specs[i], sapien.Pose(p=pose.p, q=pose.q), self.workspace, self._reach))
+        reach = None if self._reach is False else self._reach
+        return bool(placement_problem(self.specs[i], sapien.Pose(p=pose.p, q=pose.q), self.workspace, reach))
 
     def empty_bin(self, envs, device) -> list[int]:
         """Take the objects that came to rest in the bin of each of ``envs`` out of it (to their parked poses), as a

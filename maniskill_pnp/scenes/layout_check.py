@@ -83,12 +83,14 @@ def _rot(pose: sapien.Pose) -> np.ndarray:
     return pose.to_transformation_matrix()[:3, :3]
 
 
-def reachable_pixels(workspace: WorkspaceSpec) -> np.ndarray:
-    """``bool (H, W)``: the workspace's heightmap pixels where the clutter cell's arm reaches some grasp."""
+def reachable_pixels(workspace: WorkspaceSpec) -> np.ndarray | None:
+    """``bool (H, W)``: the workspace's heightmap pixels where the clutter cell's arm reaches some grasp; None where no
+    reach table of its table height is at hand (:meth:`~maniskill_pnp.cell.reach_map.ReachTable.of`)."""
     from maniskill_pnp.cell.reach_map import ReachMap
     from maniskill_pnp.cell.workspace import DEFAULT_ROBOT_BASE
 
-    return ReachMap.of(workspace, DEFAULT_ROBOT_BASE).any_line()
+    reach = ReachMap.of(workspace, DEFAULT_ROBOT_BASE)
+    return None if reach is None else reach.any_line()
 
 
 def placement_problem(spec: ObjectSpec, pose: sapien.Pose, workspace: WorkspaceSpec, reach: np.ndarray | None) -> str:

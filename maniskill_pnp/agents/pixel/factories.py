@@ -139,12 +139,13 @@ def make_action_mask(cfg: ClutterConfig, enabled: tuple[str, ...] | None = None)
     )
 
 
-def reach_pixels(cfg: ClutterConfig) -> torch.Tensor:
-    """``bool (R, H, W)``: the rotations and pixels of the config's heightmap that the clutter cell's arm reaches."""
+def reach_pixels(cfg: ClutterConfig) -> torch.Tensor | None:
+    """``bool (R, H, W)``: the rotations and pixels of the config's heightmap that the clutter cell's arm reaches; None
+    where no reach table of its table height is at hand."""
     from maniskill_pnp.cell.reach_map import ReachMap
 
-    ws = make_workspace(cfg)
-    return torch.from_numpy(ReachMap.of(ws, DEFAULT_ROBOT_BASE).pixels())
+    reach = ReachMap.of(make_workspace(cfg), DEFAULT_ROBOT_BASE)
+    return None if reach is None else torch.from_numpy(reach.pixels())
 
 
 def make_policy(cfg: ClutterConfig, model: MultiPrimitiveQNetwork, action_spec, eps: float | None = None):
