@@ -10,6 +10,7 @@ that lets a dropped clutter come to rest, and says where each env's objects are 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import sapien
@@ -104,7 +105,6 @@ class ClutterPool:
             self.arrangement_slots = [[self.random_count + i for i in index] for index in slots]
             self.specs = self.specs + specs
         self.names = [f"obj_{i}_{spec.kind}" for i, spec in enumerate(self.specs)]
-        self._reach: np.ndarray | bool | None = None  # the reachable heightmap pixels, read on first use (False: none)
         self.actors: list = []
         n = self.num_envs
         #: Per env: the pool indices of the episode's objects, their names and actors, and its layout (-1: random).
@@ -195,14 +195,15 @@ class ClutterPool:
 
     def _misplaced(self, env: int, j: int) -> bool:
         """Whether env ``env``'s object ``j`` rests partly beyond the workspace's edge or out of the arm's reach."""
-        if self._reach is None:
-            self._reach = reachable_pixels(self.workspace)
-            if self._reach is None:  # no reach table at this table height: only the edge is checked
-                self._reach = False
         i, actor = self.active_index[env][j], self.active_actors[env][j]
         pose = actor_pose(actor, env)
-        reach = None if self._reach is False else self._reach
-        return bool(placement_problem(self.specs[i], sapien.Pose(p=pose.p, q=pose.q), self.workspace, reach))
+        return bool(placement_problem(self.specs[i], sapien.Pose(p=pose.p, q=pose.q), self.workspace, self._reach))
+
+    @cached_property
+    def _reach(self) -> np.ndarray | None:
+        """The heightmap pixels where the arm reaches some grasp, read on first use (None: no reach table at this table
+        height, so only the edge is checked)."""
+        return reachable_pixels(self.workspace)
 
     def empty_bin(self, envs, device) -> list[int]:
         """Take the objects that came to rest in the bin of each of ``envs`` out of it (to their parked poses), as a

@@ -277,18 +277,25 @@ class HeightmapActionMask:
         """``bool (N, R, H, W)``: at the slide starts ``where`` ``(N, R, H, W)``, whether the slide to ``side`` keeps
         the material it carries on the heightmap (see the module docstring); True elsewhere. ``occupied``
         ``(N, 1, H, W)``: the material pixels."""
+        return self._keeps_in(self._under_band(occupied), side, where)
+
+    def _under_band(self, occupied: torch.Tensor) -> torch.Tensor:
+        """``bool (N, R, H, W)``: whether material lies under the pusher's band of each rotation centred at each pixel
+        (the same for both sides)."""
+        band = self._push_rays[0].to(occupied.device)
+        return F.conv2d(occupied.float(), band, padding=self.slide_band_px) > 0
+
+    def _keeps_in(self, under: torch.Tensor, side: str, where: torch.Tensor) -> torch.Tensor:
+        """:meth:`slides_keep_in` from the material under the band (:meth:`_under_band`)."""
         keep = torch.ones_like(where)
         at = where.nonzero(as_tuple=True)
         if not len(at[0]):
             return keep
-        band = self._push_rays[0]
-        n, _, h, w = occupied.shape
-        dev, length, r = occupied.device, self.slide_length_px, self.num_rotations
+        _, r, h, w = under.shape
+        dev, length = under.device, self.slide_length_px
         offsets, off = (v.to(dev) for v in self._push_paths(side, h, w))
         t_max = offsets.shape[1]
-        # material under the pusher's band, on the map padded with bare table
-        ahead = F.conv2d(occupied.float(), band.to(dev), padding=self.slide_band_px) > 0  # (N, R, H, W)
-        ahead = F.pad(ahead, (t_max, t_max, t_max, t_max)).flatten()
+        ahead = F.pad(under, (t_max, t_max, t_max, t_max)).flatten()  # the map padded with bare table
         size = (h + 2 * t_max) * (w + 2 * t_max)
         base = (at[0] * r + at[1]) * size + (at[2] + t_max) * (w + 2 * t_max) + at[3] + t_max
         met = ahead[base[:, None] + offsets[at[1]]]  # (K, T): material under the pusher at each step
@@ -342,6 +349,7 @@ class HeightmapActionMask:
             occupied = flat > self.min_height
         c = self.slide_clear_px
         clear = ~(F.max_pool2d(occupied.float(), 2 * c + 1, stride=1, padding=c) > 0)  # bare-table slide starts
+        under = None  # the material under the pusher's band, shared by both slide sides
         masks = []
         for name in self.primitives:
             if self.enabled is not None and name not in self.enabled:
@@ -356,7 +364,8 @@ class HeightmapActionMask:
                 ahead = F.conv2d(occupied.float(), kernels, padding=self.slide_ahead_px) > 0
                 allowed = clear & ahead
                 if self.slide_length_px is not None:
-                    allowed = allowed & self.slides_keep_in(occupied, side, allowed)
+                    under = self._under_band(occupied) if under is None else under
+                    allowed = allowed & self._keeps_in(under, side, allowed)
                 masks.append(allowed)
             if self.reach is not None and (self.enabled is None or name in self.enabled):
                 masks[-1] = masks[-1] & self._reached(name, flat.device)
