@@ -197,8 +197,8 @@ def _obs_with_everything_drawn(base) -> dict:
 def _hidden_names(base) -> set[str]:
     names = set()
     with base._unseen_bodies_hidden():
-        names = {b.entity.name for b in base._render_bodies if b.visibility == 0.0}
-    assert all(b.visibility == 1.0 for b in base._render_bodies)  # drawn again after the render
+        names = {b.entity.name for b in base._body_boxes.bodies if b.visibility == 0.0}
+    assert all(b.visibility == 1.0 for b in base._body_boxes.bodies)  # drawn again after the render
     return names
 
 
@@ -211,10 +211,10 @@ def test_bodies_out_of_every_view_are_left_out_of_the_render_and_the_heightmaps_
     for seed in (4, 5):
         env.reset(seed=seed)
         hidden = _hidden_names(base)
-        links = {b.entity.name for b in base._render_bodies if b.entity.name.startswith("panda_")}
+        links = {b.entity.name for b in base._body_boxes.bodies if b.entity.name.startswith("panda_")}
         active = {f"scene-0_{name}" for name in base.clutter.active[0]}
         on_table = {f"scene-0_{name}" for name, where in zip(base.clutter.active[0], base.clutter.status(0)) if where == "workspace"}
-        parked = {b.entity.name for b in base._render_bodies if b.entity.name.startswith("scene-0_obj_")} - active
+        parked = {b.entity.name for b in base._body_boxes.bodies if b.entity.name.startswith("scene-0_obj_")} - active
         assert links <= hidden and parked <= hidden and "scene-0_ground" in hidden, hidden
         assert on_table and not (on_table & hidden) and "scene-0_table-workspace" not in hidden
         obs, drawn = base.get_obs(), _obs_with_everything_drawn(base)
@@ -229,6 +229,11 @@ def test_bodies_out_of_every_view_are_left_out_of_the_render_and_the_heightmaps_
     assert "panda_hand" not in _hidden_names(base)
     obs, drawn = base.get_obs(), _obs_with_everything_drawn(base)
     assert torch.equal(obs["depth_heightmap"], drawn["depth_heightmap"])
+    # The boxes the test reads are SAPIEN's own (local boxes moved), for every kind of body: links, table, bin, objects.
+    lo, hi = base._body_boxes.world()
+    sapien_boxes = np.array([b.get_global_aabb_fast() for b in base._body_boxes.bodies])
+    np.testing.assert_allclose(lo, sapien_boxes[:, 0], atol=1e-5)
+    np.testing.assert_allclose(hi, sapien_boxes[:, 1], atol=1e-5)
     env.close()
 
 

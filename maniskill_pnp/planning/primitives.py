@@ -153,8 +153,15 @@ class MotionPrimitives:
     EMPTY_GAP = 0.002
     #: An object counts as lifted when it rose at least this much (m).
     LIFTED = 0.05
-    #: Control steps given to the gripper to close or open.
+    #: Most control steps given to the gripper to close or open.
     GRIPPER_STEPS = 12
+    #: Fewest control steps of a gripper command; after them it ends once the fingers have stopped (see
+    #: :meth:`_gripper`).
+    GRIPPER_MIN_STEPS = 2
+    #: The fingers count as stopped when neither moved more than this (m) in the last control step...
+    FINGERS_STILL = 0.0002
+    #: ...or, opening, when both are within this (m) of open.
+    OPEN_ENOUGH = 0.0015
     #: Heights (m) above the place region's drop height tried in turn for the release pose: where the held object
     #: would collide at the drop height (a filling bin, an object held off its centre), it is released higher.
     PLACE_LIFTS = (0.0, 0.08, 0.16)
@@ -533,8 +540,23 @@ class MotionPrimitives:
         return {n: float(self._actor_position(n)[2]) for n in names}
 
     def _gripper(self, command: float, steps: int) -> Motion:
-        """The gripper command for ``steps`` control steps, the arm held where it is."""
-        return Motion(gripper=command, min_steps=steps, settle_tol=None)
+        """The gripper command for at most ``steps`` control steps, the arm held where it is: after
+        :attr:`GRIPPER_MIN_STEPS` it ends as soon as the fingers stopped (closed on an object or on each other, or
+        open). Fingers that close on an object stall in 3-5 steps, and their drives then press with the force they
+        would press with after all 12 (a joint-position drive at rest); opening is at 96% after 7."""
+        if steps <= 0:
+            return Motion(gripper=command, settle_tol=None)
+        least = min(steps, self.GRIPPER_MIN_STEPS)
+        last = [self.executor.finger_qpos()]
+
+        def stopped() -> bool:
+            now = last[0], self.executor.finger_qpos()
+            last[0] = now[1]
+            if command > 0 and np.min(now[1]) >= self.arm.gripper_open - self.OPEN_ENOUGH:
+                return True
+            return bool(np.max(np.abs(now[1] - now[0])) < self.FINGERS_STILL)
+
+        return Motion(gripper=command, min_steps=least, settle_tol=None, until=stopped, max_settle=steps - least)
 
     def _wait_at_rest(self, name: str, max_steps: int = 40) -> Motion:
         """Hold the arm (at least one step, at most ``max_steps``) until actor ``name`` moves slower than 1 cm/s."""

@@ -61,6 +61,7 @@ from maniskill_pnp.scenes.objects import KINDS, ObjectSpec
 from maniskill_pnp.cell.pixel_action import PixelActionLayout
 from maniskill_pnp.tasks.primitive_env import Decision, Judgement, PrimitiveStepEnv
 from maniskill_pnp.tasks.registration import register_task
+from maniskill_pnp.tasks.render_boxes import RenderBoxes
 from maniskill_pnp.scenes.scene_file import load_scene, save_scene
 from maniskill_pnp.cell.view_volume import ViewVolumes
 from maniskill_pnp.cell.workspace import DEFAULT_ROBOT_BASE, WorkspaceSpec
@@ -311,7 +312,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         self.action_layout = PixelActionLayout(len(self.PRIMITIVES), self.workspace.num_rotations, s, s)
         self.home_qpos = camera_clear_home()
         self._view_volumes = ViewVolumes(self.workspace)
-        self._render_bodies_of, self._render_bodies_list = None, []  # the sub-scene they were found in, and them
+        self._render_boxes_of, self._render_boxes = None, None  # the sub-scene they were found in, and its boxes
         self.prims: list[MotionPrimitives] | None = None
         self.settle_steps = np.zeros(n, dtype=np.int64)
         self.num_actions = np.zeros(n, dtype=np.int64)
@@ -678,9 +679,8 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         if self.include_camera_data or self.gpu_sim_enabled:
             yield
             return
-        bodies = self._render_bodies
-        boxes = np.array([b.get_global_aabb_fast() for b in bodies])  # conservative: each local box, moved
-        unseen = [b for b, out in zip(bodies, self._view_volumes.outside(boxes[:, 0], boxes[:, 1])) if out]
+        boxes = self._body_boxes
+        unseen = [b for b, out in zip(boxes.bodies, self._view_volumes.outside(*boxes.world())) if out]
         for b in unseen:
             b.visibility = 0.0
         try:
@@ -690,14 +690,15 @@ class ClutterGraspEnv(PrimitiveStepEnv):
                 b.visibility = 1.0
 
     @property
-    def _render_bodies(self) -> list:
-        """The render bodies of the (one) sub-scene, found once per scene (a reconfiguration builds a new one)."""
+    def _body_boxes(self) -> RenderBoxes:
+        """The boxes of the (one) sub-scene's render bodies (conservative: each local box, moved), their local boxes
+        found once per scene (a reconfiguration builds a new one)."""
         scene = self.scene.sub_scenes[0]
-        if self._render_bodies_of is not scene:
-            self._render_bodies_list = [rb for e in scene.entities
-                                        for rb in [e.find_component_by_type(sapien.render.RenderBodyComponent)] if rb is not None]
-            self._render_bodies_of = scene
-        return self._render_bodies_list
+        if self._render_boxes_of is not scene:
+            self._render_boxes = RenderBoxes(rb for e in scene.entities
+                                             for rb in [e.find_component_by_type(sapien.render.RenderBodyComponent)] if rb is not None)
+            self._render_boxes_of = scene
+        return self._render_boxes
 
     def _env_info(self, env: int) -> dict:
         status = self.clutter.status(env)
