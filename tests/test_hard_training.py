@@ -111,6 +111,44 @@ def test_unlock_schemes_pay_the_slide_that_frees_a_bar_and_not_one_that_only_mov
         e.close()
 
 
+def test_fit_gain_pays_the_slide_that_adds_a_graspable_region_from_the_heightmaps_alone():
+    """row_of_three: no grasp fits the heightmap of three pressed bars; pushing the end bar out of the row adds a
+    region where grasps fit, and "fit_gain" pays 0.5. An isolated cube pushed aside keeps its one region: 0, and still
+    no failure. The judgement reads only the heightmaps: the same numbers come from the observations."""
+    from maniskill_pnp.scenes.heightmap_fit import HeightmapGraspFit, graspable_regions
+
+    e = gym.make("ClutterGraspSlide-v1", workspace=WS, layout="complicated", reward_scheme="fit_gain", guard_force=20.0,
+                 complicated_index=COMPLICATED_LAYOUT_NAMES.index("row_of_three"), **CPU)
+    fit = HeightmapGraspFit.for_workspace(WS)
+
+    def regions(obs) -> int:
+        h = obs["depth_heightmap"]
+        occupied = h > 0.01
+        return graspable_regions(fit(h, occupied, obs.get("fit_heightmap"))[0].any(dim=0), occupied[0])
+
+    try:
+        obs, _ = e.reset(seed=0)
+        assert regions(obs) == 0
+        before = positions(e)
+        u = e.unwrapped
+        row, col = u.workspace.world_to_pixel(before[2] + [0.014, -0.065, 0.0])
+        obs, reward, _, _, info = e.step(u.action_layout.encode(u.PRIMITIVES.index("left_slide"), 0, int(row), int(col)))
+        assert info["slide_changed"] and info["slide_fit_gain"].item() == regions(obs) >= 1, info
+        assert reward.item() == 0.5 and info["slide_unlocked"].item() == 0  # the simulator's judgement is not made
+    finally:
+        e.close()
+    cx, cy = WS.center
+    cube = (ObjectSpec("cuboid", (0.02, 0.02, 0.02)), (cx + 0.08, cy + 0.05, 0.02))
+    e = gym.make("ClutterGraspSlide-v1", workspace=WS, layout=[cube], reward_scheme="fit_gain", **CPU)
+    try:
+        e.reset(seed=0)
+        reward, info = slide(e, "right_slide", 1, np.asarray(cube[1]) - [0.04, 0.0, 0.0])  # right of rotation 1: +x
+        assert info["slide_changed"] and info["slide_fit_gain"] == 0 and reward == 0.0, info
+        assert info["consecutive_failures"] == 0
+    finally:
+        e.close()
+
+
 def test_config_fields_reach_the_training_env_only():
     cfg = ClutterConfig.from_preset("gs-cpu-equi-fit", heightmap_size=32, num_rotations=4, loss_cost=1.0,
                                     hard_sets=("hard_train", "packed_train"))

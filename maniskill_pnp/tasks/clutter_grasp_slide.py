@@ -24,29 +24,41 @@ collision shapes at their poses, on the grid of :data:`UNLOCK_CHECK`). A slide t
 grasp could take anyway, or pushes a locked block as a whole, then earns nothing. ``"unlock_each"`` counts what
 ``"unlock"`` judges: 0.5 per object the slide made graspable, for at most two objects (a slide never pays more than
 a placement), so one slide that frees two objects earns what two slides that free one each earn,
-in one action fewer.
+in one action fewer. ``"fit_gain"`` pays a slide as ``"unlock"`` does, but judged from the heightmaps alone, as a real
+cell could: the slide must add a graspable region (``info["slide_fit_gain"]``: the connected regions of material in
+the heightmap where some grasp fits, :func:`~maniskill_pnp.scenes.heightmap_fit.graspable_regions`, after the slide
+less before it; about one per object a grasp can take). No simulator shape or pose enters it.
 """
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
+import torch
 
 from maniskill_pnp.scenes.clutter import validate_layout
 from maniskill_pnp.tasks.clutter_grasp import ClutterGraspEnv
 from maniskill_pnp.scenes.complicated_layouts import COMPLICATED_LAYOUT_NAMES, complicated_layouts
 from maniskill_pnp.scenes.grasp_feasibility import grasp_feasibility
+from maniskill_pnp.scenes.heightmap_fit import HeightmapGraspFit, graspable_regions
 from maniskill_pnp.tasks.primitive_env import Judgement
 from maniskill_pnp.tasks.registration import register_task
 
-#: Rewards per scheme: object placed in the bin, grasped but not placed, slide that changed the scene; and
-#: ``freed_paid``: when > 0 the scheme judges a slide by the objects it made graspable (``info["slide_unlocked"]``)
-#: and pays ``slide`` per such object, for at most ``freed_paid`` of them (0: a slide pays for any change).
+#: Rewards per scheme: object placed in the bin, grasped but not placed, slide that changed the scene; and how a
+#: slide is judged: with ``freed_paid`` > 0 by the objects it made graspable in the simulator (``info["slide_unlocked"]``),
+#: with ``fit_paid`` > 0 by the graspable regions it added to the heightmap (``info["slide_fit_gain"]``), paying
+#: ``slide`` per such object or region, for at most that many (both 0: a slide pays for any change).
 REWARD_SCHEMES = {
-    "default": dict(place=1.0, grasp=0.8, slide=0.5, freed_paid=0),
-    "no_slide_reward": dict(place=1.0, grasp=0.8, slide=0.0, freed_paid=0),
-    "unlock": dict(place=1.0, grasp=0.8, slide=0.5, freed_paid=1),
-    "unlock_each": dict(place=1.0, grasp=0.8, slide=0.5, freed_paid=2),
+    "default": dict(place=1.0, grasp=0.8, slide=0.5, freed_paid=0, fit_paid=0),
+    "no_slide_reward": dict(place=1.0, grasp=0.8, slide=0.0, freed_paid=0, fit_paid=0),
+    "unlock": dict(place=1.0, grasp=0.8, slide=0.5, freed_paid=1, fit_paid=0),
+    "unlock_each": dict(place=1.0, grasp=0.8, slide=0.5, freed_paid=2, fit_paid=0),
+    "fit_gain": dict(place=1.0, grasp=0.8, slide=0.5, freed_paid=0, fit_paid=1),
 }
+#: A heightmap pixel holds material above this height (m), for the graspable regions of ``"fit_gain"`` (the agents'
+#: material test).
+MATERIAL_HEIGHT = 0.01
 #: The grasp-feasibility grid of the unlock schemes: the agent's 8 jaw lines, a coarser grid than
 #: ``check-scene``'s (a check of the objects around a slide takes about 0.1-0.3 s on one core).
 UNLOCK_CHECK = dict(yaw_step_deg=22.5, position_step=0.004, resolution=0.001, first_only=True)
@@ -93,7 +105,7 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
     Reward (``reward_scheme="default"``): 1 placed in the bin, 0.8 grasped but not placed, 0.5 a slide that
     changed the heightmap without knocking an object out of the workspace, 0 otherwise; ``"no_slide_reward"`` gives
     slides 0, ``"unlock"`` 0.5 only to a slide that made a locked object graspable, ``"unlock_each"`` 0.5 per
-    object so freed (at most 1); with ``loss_cost=c``, c less per object the action lost off the workspace (a
+    object so freed (at most 1), ``"fit_gain"`` 0.5 only to a slide that added a graspable region to the heightmap; with ``loss_cost=c``, c less per object the action lost off the workspace (a
     slide's or a grasp's).
 
     **Randomizations:**
@@ -111,7 +123,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
       ``info`` is ClutterGrasp-v1's plus ``primitive`` (name), ``primitive_index``, ``slide_changed``,
       ``changed_pixels``, ``knocked_out`` (objects the slide pushed out of the workspace) and ``slide_unlocked``
       (objects the slide made graspable; counted by the ``"unlock"`` and ``"unlock_each"`` reward schemes only, 0
-      otherwise).
+      otherwise) and ``slide_fit_gain`` (graspable regions of the heightmap the slide added; counted by the
+      ``"fit_gain"`` scheme only, 0 otherwise).
     """
 
     PRIMITIVES = ("grasp", "left_slide", "right_slide")
@@ -191,13 +204,26 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         return program
 
     def _initial_last(self):
-        return dict(super()._initial_last(), changed_pixels=0, slide_unlocked=0)
+        return dict(super()._initial_last(), changed_pixels=0, slide_unlocked=0, slide_fit_gain=0)
 
     def _snapshot(self, env):
         snap = super()._snapshot(env)
         if self.rewards["freed_paid"]:
             snap["objects"] = self.clutter.workspace_objects(env)
+        if self.rewards["fit_paid"]:
+            snap["fit"] = None if self._fit_height is None else self._fit_height[env]
         return snap
+
+    @cached_property
+    def _fit_test(self) -> HeightmapGraspFit:
+        return HeightmapGraspFit.for_workspace(self.workspace)
+
+    def _graspable_regions(self, height: np.ndarray, fit: np.ndarray | None) -> int:
+        """Graspable regions of one heightmap (and its fit heightmap, where the task makes one)."""
+        h = torch.as_tensor(height, dtype=torch.float32)[None]
+        f = None if fit is None else torch.as_tensor(fit, dtype=torch.float32)[None]
+        occupied = h > MATERIAL_HEIGHT
+        return graspable_regions(self._fit_test(h, occupied, f)[0].any(dim=0), occupied[0])
 
     def _unlocked(self, env, before) -> int:
         """Objects near those the slide moved that were locked before it and are graspable after it."""
@@ -239,4 +265,9 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         if self.rewards["freed_paid"] and changed:
             outcome["slide_unlocked"] = self._unlocked(env, before["objects"])
             pays = min(outcome["slide_unlocked"], self.rewards["freed_paid"])
+        if self.rewards["fit_paid"] and changed:
+            now = None if self._fit_height is None else self._fit_height[env]
+            gain = self._graspable_regions(self._height[env], now) - self._graspable_regions(before["height"], before["fit"])
+            outcome["slide_fit_gain"] = gain
+            pays = min(max(gain, 0), self.rewards["fit_paid"])
         return Judgement(self.rewards["slide"] * pays, changed, outcome)

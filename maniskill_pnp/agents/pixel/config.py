@@ -104,8 +104,10 @@ class ClutterConfig(RunConfig):
     turns delay_value and double_dqn off)."""
     reward_scheme: str = "default"
     """Reward scheme of ClutterGraspSlide-v1: "default" (a slide pays for any change of the scene),
-    "no_slide_reward", "unlock" (a slide pays only when it makes a locked object graspable) or "unlock_each" (it pays
-    per object it makes graspable, up to a placement's reward); must be "default" for task grasp."""
+    "no_slide_reward", "unlock" (a slide pays only when it makes a locked object graspable, judged in the simulator),
+    "unlock_each" (it pays per object it makes graspable, up to a placement's reward) or "fit_gain" (it pays only when
+    it adds a region where grasps fit the heightmap: no simulator state, as on a real cell); must be "default" for
+    task grasp."""
     loss_cost: float = 0.0
     """Reward taken off per object an action loses off the workspace, by any cause (a slide's push, a neighbour set
     rolling by a grasp, a drop in transit or at release; the task's ``loss_cost``); 0: a loss costs only the reward

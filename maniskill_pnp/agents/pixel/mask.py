@@ -53,14 +53,11 @@ from dataclasses import dataclass, field
 import functools
 from functools import cached_property
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 
 from maniskill_pnp.cell.workspace import WorkspaceSpec
-
-#: Default tolerance (m) of the grasp-fit test: a finger may come this close above a height of the map (its noise).
-FIT_TOLERANCE = 0.003
+from maniskill_pnp.scenes.heightmap_fit import FIT_TOLERANCE, HeightmapGraspFit, pusher_half_width
 
 #: Primitive names the mask knows: grasps need material at the pixel, slides material ahead on their path.
 GRASP, SLIDES = "grasp", ("left_slide", "right_slide")
@@ -162,7 +159,7 @@ class HeightmapActionMask:
         px = workspace.pixel_size
         if keep_in:
             kwargs.update(slide_length_px=max(1, int(round(workspace.slide_length / px))),
-                          slide_band_px=int(round(_pusher_half_width() / px)))
+                          slide_band_px=int(round(pusher_half_width() / px)))
         return cls(
             primitives, workspace.num_rotations, slide_clear_px=int(round(workspace.slide_clearance / px)),
             slide_ahead_px=max(1, int(round(ahead_fraction * workspace.slide_length / px))), pixel_size=px,
@@ -170,57 +167,16 @@ class HeightmapActionMask:
             **kwargs,
         )
 
-    def _gripper(self, scale: int = 1) -> tuple[int, list[tuple[torch.Tensor, torch.Tensor]], torch.Tensor, object]:
-        """The open gripper as indices into a grasp pixel's flattened ``(2 * reach + 1)²`` neighbourhood on a map
-        ``scale`` times finer than the heightmap: ``(reach, descent, closing, model)``, built once per mask and scale
-        (:func:`_gripper_cells`)."""
-        return _gripper_cells(self.pixel_size, self.num_rotations, scale)
+    @cached_property
+    def _fit(self) -> HeightmapGraspFit:
+        return HeightmapGraspFit(self.num_rotations, self.pixel_size, self.grasp_depth, self.min_tip_height,
+                                 self.fit_tolerance)
 
     def grasp_fits(self, height: torch.Tensor, where: torch.Tensor, fit: torch.Tensor | None = None) -> torch.Tensor:
         """``bool (N, R, H, W)``: at the pixels of ``where`` ``(N, H, W)``, whether a grasp at each rotation fits the
-        heightmap ``height`` ``(N, H, W)`` (m above the table; extended by bare table beyond its edges); False
-        elsewhere. It fits when
-
-        1. the open gripper, lowered to the grasp's fingertip height, stays above every height under it (within
-           ``fit_tolerance``), and
-        2. closing would bear on material: along each pad's two edges and middle, closing from its inner face meets
-           material that reaches into the pads' height band, and where it is met differs across the pad's width by
-           at most the friction slope of :mod:`~maniskill_pnp.scenes.grasp_feasibility` plus a pixel (a corner
-           pinched obliquely is no grasp).
-
-        With a fit heightmap ``fit`` ``(N, k·H, k·W)`` (the same square on a ``k`` times finer grid) the two tests
-        read it instead, around each grasp pixel's centre; the fingertip height still follows ``height`` at the pixel,
-        as the task's grasp does.
-        """
-        from maniskill_pnp.scenes.grasp_feasibility import FRICTION, MIN_GRIP
-
-        n, h, w = height.shape
-        scale, fine = 1, height
-        if fit is not None:
-            scale = fit.shape[-1] // w
-            if fit.shape != (n, scale * h, scale * w) or scale < 1:
-                raise ValueError(f"the fit heightmap must be (N, k*H, k*W) for a whole k >= 1 with the heightmap "
-                                 f"{tuple(height.shape)}, got {tuple(fit.shape)}")
-            fine = fit.to(height.dtype)
-        reach, descent, closing, model = self._gripper(scale)
-        k, dev = 2 * reach + 1, height.device
-        windows = F.pad(fine, (reach, reach, reach, reach)).unfold(1, k, 1).unfold(2, k, 1)  # (N, kH, kW, K, K) view
-        at = where.nonzero(as_tuple=True)
-        around = windows[at[0], at[1] * scale + scale // 2, at[2] * scale + scale // 2].reshape(-1, k * k)
-        tcp = torch.clamp(height[at] - self.grasp_depth, min=self.min_tip_height)
-        band = (tcp + model.pad_band[0] + MIN_GRIP)[:, None, None, None]
-        step = self.pixel_size / scale
-        spread = FRICTION * 2 * model.pad_half_width + step
-        closing = closing.to(dev)
-        fits = torch.zeros(n, self.num_rotations, h, w, dtype=torch.bool, device=dev)
-        for rot, (index, lowest) in enumerate(descent):
-            clear = (around[:, index.to(dev)] - lowest.to(dev)).amax(dim=-1) <= tcp + self.fit_tolerance
-            material = around[:, closing[rot]] > band  # (M, 2 pads, 3 lines, S)
-            met = material.any(dim=-1)
-            first = material.to(torch.uint8).argmax(dim=-1).float() * (step / 2)  # travel to first contact
-            flat = (first.amax(dim=-1) - first.amin(dim=-1) <= spread).all(dim=-1)
-            fits[at[0], rot, at[1], at[2]] = clear & met.all(dim=-1).all(dim=-1) & flat
-        return fits
+        heightmap ``height`` ``(N, H, W)``, read from the fit heightmap ``fit`` where there is one
+        (:class:`~maniskill_pnp.scenes.heightmap_fit.HeightmapGraspFit`); False elsewhere."""
+        return self._fit(height, where, fit)
 
     @cached_property
     def _ahead_kernels(self) -> dict[str, torch.Tensor]:
@@ -354,21 +310,25 @@ class HeightmapActionMask:
         for name in self.primitives:
             if self.enabled is not None and name not in self.enabled:
                 masks.append(torch.zeros(n, rots, h, w, dtype=torch.bool, device=flat.device))
-            elif name == GRASP and self.grasp_fit:
-                masks.append(self.grasp_fits(flat[:, 0], occupied[:, 0], fit))
+                continue
+            # reach first: the costlier tests below then look at fewer actions
+            reached = None if self.reach is None else self._reached(name, flat.device).expand(n, rots, h, w)
+            if name == GRASP and self.grasp_fit:
+                fits = self.grasp_fits(flat[:, 0], occupied[:, 0] & (True if reached is None else reached.any(dim=1)), fit)
+                masks.append(fits if reached is None else fits & reached)
             elif name == GRASP or self.min_height is None:
-                masks.append(occupied.expand(n, rots, h, w))
+                allowed = occupied.expand(n, rots, h, w)
+                masks.append(allowed if reached is None else allowed & reached)
             else:
                 side = name.removesuffix("_slide")
                 kernels = self._ahead_kernels[side].to(flat.device)
-                ahead = F.conv2d(occupied.float(), kernels, padding=self.slide_ahead_px) > 0
-                allowed = clear & ahead
+                allowed = clear & (F.conv2d(occupied.float(), kernels, padding=self.slide_ahead_px) > 0)
+                if reached is not None:
+                    allowed = allowed & reached
                 if self.slide_length_px is not None:
                     under = self._under_band(occupied) if under is None else under
                     allowed = allowed & self._keeps_in(under, side, allowed)
                 masks.append(allowed)
-            if self.reach is not None and (self.enabled is None or name in self.enabled):
-                masks[-1] = masks[-1] & self._reached(name, flat.device)
         if self.grasp_fit and GRASP in self.primitives and (self.enabled is None or GRASP in self.enabled):
             # Where no grasp fits and no other primitive may act, grasps fall back to the material test.
             g = self.primitives.index(GRASP)
@@ -394,63 +354,6 @@ class HeightmapActionMask:
     def from_observation(self, observation: torch.Tensor, fit: torch.Tensor | None = None) -> torch.Tensor:
         """Flat mask of network inputs ``(*B, 4, H, W)`` (height in channel 3) and their fit heightmaps."""
         return self(observation[..., 3, :, :], fit)
-
-
-@functools.cache
-def _pusher_half_width() -> float:
-    """Half the width (m) of the closed Panda fingers across a slide's push: the extent along the jaws of the gripper's
-    points within 2 cm of the fingertips."""
-    from maniskill_pnp.scenes.grasp_feasibility import panda_gripper
-
-    points = panda_gripper(opening=0.0).points
-    return float(np.abs(points[points[:, 2] < 0.02, 1]).max())
-
-
-@functools.cache
-def _gripper_cells(pixel_size: float, num_rotations: int, scale: int):
-    """The open gripper over a map ``scale`` times finer than heightmap pixels of ``pixel_size``: ``(reach, descent,
-    closing, model)``, indices into the flattened ``(2 * reach + 1)²`` neighbourhood of the fine pixel at a grasp
-    pixel's centre (the one whose lower corner it is, for an even ``scale``).
-
-    ``descent[r]`` is ``(index, lowest)``: the neighbourhood cells under the gripper at rotation ``r`` and its
-    lowest height above the fingertip TCP over each (m). ``closing[r]`` ``(2, 3, S)``: for each pad (+y, -y), three
-    lines across its width (its two edges and middle) from its inner face towards the other pad, ``S`` cells half a
-    fine pixel apart. ``reach`` is the largest offset (fine pixels), ``model`` the
-    :class:`~maniskill_pnp.scenes.grasp_feasibility.GripperModel`. Rotation ``r`` closes the jaws along
-    ``r * 360° / num_rotations`` from the column axis."""
-    from maniskill_pnp.scenes.grasp_feasibility import panda_gripper
-
-    model = panda_gripper()
-    points = model.points  # x along the pads' width, y the closing direction, lowest height above the TCP
-    cell = pixel_size / scale
-    travel = np.arange(0.0, 2 * model.pad_inner + cell / 4, cell / 2)
-    lines = np.array([[[(x, sign * (model.pad_inner - t)) for t in travel]
-                       for x in (-model.pad_half_width, 0.0, model.pad_half_width)] for sign in (1.0, -1.0)])
-
-    def cells(xy: np.ndarray, yaw: float) -> np.ndarray:  # grasp-frame (x, y) -> fine-pixel offsets (row, col)
-        dx = xy[..., 1] * np.cos(yaw) - xy[..., 0] * np.sin(yaw)
-        dy = xy[..., 1] * np.sin(yaw) + xy[..., 0] * np.cos(yaw)
-        offsets = np.stack([dy, dx], axis=-1) / cell
-        # an odd scale puts a fine pixel's centre on the grasp pixel's, an even one a fine pixel's corner
-        return (np.round(offsets) if scale % 2 else np.floor(offsets)).astype(np.int64)
-
-    under, closing = [], []
-    for rot in range(num_rotations):
-        yaw = rot * 2 * np.pi / num_rotations
-        keys, inverse = np.unique(cells(points[:, :2], yaw), axis=0, return_inverse=True)
-        lowest = np.full(len(keys), np.inf)
-        np.minimum.at(lowest, inverse.reshape(-1), points[:, 2])
-        under.append((keys, lowest))
-        closing.append(cells(lines, yaw))
-    closing = np.stack(closing)
-    reach = int(max(max(np.abs(keys).max() for keys, _ in under), np.abs(closing).max()))
-    k = 2 * reach + 1
-
-    def flat(offsets: np.ndarray) -> torch.Tensor:
-        return torch.from_numpy((offsets[..., 0] + reach) * k + offsets[..., 1] + reach)
-
-    descent = [(flat(keys), torch.from_numpy(lowest).float()) for keys, lowest in under]
-    return reach, descent, flat(closing), model
 
 
 __all__ = ["FIT_TOLERANCE", "HeightmapActionMask"]
