@@ -108,7 +108,7 @@ def test_two_agents_are_compared_scene_by_scene(quick_run, tmp_path):
 def test_protocol_sizes_and_bad_input(tmp_path):
     full = protocol("grasp_slide", quick=False)
     assert {(p.scenario, p.episodes) for p in full} >= {("medium", 24), ("min", 8), ("max", 8), ("complicated", 8),
-                                                          ("hard", 32), ("hard_unseen", 24)}
+                                                          ("hard", 32), ("hard_unseen", 48)}
     assert all(p.guard_force == 20.0 for p in full if p.scenario.startswith("hard"))
     assert {p.scenario for p in full if p.grasp_only} == {"medium", "hard", "hard_unseen", "anywhere"}
     assert all(p.episodes == QUICK_EPISODES for p in protocol("grasp_slide", quick=True))

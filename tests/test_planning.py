@@ -174,6 +174,33 @@ def test_pick_and_place_succeeds_in_9_of_10_seeds(cube_env):
     assert successes >= 9, f"{successes}/10 pick-and-place successes"
 
 
+def test_a_gripper_command_ends_once_the_fingers_stop(cube_env):
+    """Closing on the cube, the fingers stall within a few control steps and the command ends there (not after all
+    12), the cube held; opening over the bin ends when the fingers are nearly open; closing on nothing ends when the
+    fingers meet."""
+    prims = _prims(cube_env)
+    lock = prims.executor.lockstep
+    run, steps = lock.run, {}
+
+    def counted(motions):
+        m, c0 = motions[0], lock.control_steps
+        out = run(motions)
+        if m is not None and m.targets is None and m.gripper is not None and m.min_steps:
+            steps.setdefault(m.gripper, []).append(lock.control_steps - c0)
+        return out
+
+    lock.run = counted
+    most = MotionPrimitives.GRIPPER_STEPS
+    pick = prims.pick(_cube_grasp(cube_env), target="cube")
+    assert pick.ok and pick.grasped and 3 <= steps[-1.0][0] < most, (pick.reason, steps)
+    assert prims.jaws_on_something()
+    place = prims.place(cube_env.unwrapped.bin_spec.region())
+    assert place.ok and steps[1.0][0] < most, steps
+    assert np.min(prims.executor.finger_qpos()) >= prims.arm.gripper_open - MotionPrimitives.OPEN_ENOUGH
+    prims.slide(np.array([0.0, 0.1, 0.015]), direction=np.array([1.0, 0.0]), length=0.02)  # closes the jaws on nothing
+    assert steps[-1.0][-1] < most and np.max(prims.executor.finger_qpos()) < 0.001, steps
+
+
 def test_grasp_sensor_reports_an_empty_grasp(cube_env):
     prims = _prims(cube_env)
     pose = _cube_grasp(cube_env)

@@ -7,7 +7,7 @@ Q-table (``train-conveyor`` run folder or its ``qtable.pt``). The protocol is a 
 :data:`CONVEYOR_PARTS`):
 
 * a G&S agent (``ClutterGraspSlide-v1``): 24 ``medium``, 8 ``min``, 8 ``max`` scenes and the 8 locking layouts,
-  the hard set (32 scene files), the held-out families (``hard_unseen``, 24) and packed arrangements anywhere in the
+  the hard set (32 scene files), the held-out families (``hard_unseen``, 48) and packed arrangements anywhere in the
   workspace (``anywhere``, 24) with guarded grasps and slides (20 N); ``medium`` and the three packed sets again
   with the agent's grasp-only restriction, the comparison of the protocol;
 * a grasping agent (``ClutterGrasp-v1``): 24 scenes of 10 objects;
@@ -82,8 +82,8 @@ GRASP_SLIDE_PARTS = (
     Part("locking layouts", "complicated", 8, actions_per_episode=6),
     Part("hard", "hard", 32, guard_force=GUARD_N, actions_per_episode=6),
     Part("hard grasp-only", "hard", 32, grasp_only=True, guard_force=GUARD_N, actions_per_episode=7),
-    Part("hard_unseen", "hard_unseen", 24, guard_force=GUARD_N, actions_per_episode=6),
-    Part("hard_unseen grasp-only", "hard_unseen", 24, grasp_only=True, guard_force=GUARD_N, actions_per_episode=7),
+    Part("hard_unseen", "hard_unseen", 48, guard_force=GUARD_N, actions_per_episode=6),
+    Part("hard_unseen grasp-only", "hard_unseen", 48, grasp_only=True, guard_force=GUARD_N, actions_per_episode=7),
     Part("anywhere", "anywhere", 24, guard_force=GUARD_N, actions_per_episode=6),
     Part("anywhere grasp-only", "anywhere", 24, grasp_only=True, guard_force=GUARD_N, actions_per_episode=7),
 )

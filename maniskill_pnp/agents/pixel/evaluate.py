@@ -15,7 +15,7 @@ Scenarios (``scenarios``, one table row each, like the thesis' Table IX): ``"tra
 count), an object count such as ``"10"``, a density preset of the task (``"min"``, ``"medium"``, ``"max"``) or
 ``"complicated"`` (ClutterGraspSlide-v1's hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset),
 ``"hard"`` (the 24 generated tightly packed scenes and the 8 locking layouts, episode ``i`` on file ``i mod 32``: run
-at least 32 episodes to play them all), ``"hard_unseen"`` (the 24 tightly packed scenes of families no training draws);
+at least 32 episodes to play them all), ``"hard_unseen"`` (the 48 tightly packed scenes of families no training draws);
 see :data:`~maniskill_pnp.agents.pixel.factories.SCENARIOS`. Scene files of the user's own arrangements
 (``layout_file``, :mod:`~maniskill_pnp.scenes.scene_file`) are one more scenario, after those: its row is named
 after the files' stems (joined by ``+``), and episode ``i`` is played on file ``i mod (number of files)`` (seed
@@ -128,7 +128,7 @@ class ClutterEvalConfig:
     of the results table); an episode cut by it is not completed. None (or a large value): no such cap."""
     scenarios: tuple[str, ...] = ()
     """Scenes to evaluate, one table row each: "train", an object count, "min", "medium", "max", "complicated",
-    "hard" (the hard test set: 32 scene files), "hard_unseen" (24 scene files of families no training draws) or
+    "hard" (the hard test set: 32 scene files), "hard_unseen" (48 scene files of families no training draws) or
     "anywhere" (24 scene files of packed arrangements anywhere in the workspace, half near its edge); none:
     "train", or only the layout files when some are given."""
     layout_file: tuple[Path, ...] = ()

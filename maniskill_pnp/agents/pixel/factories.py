@@ -28,7 +28,7 @@ from maniskill_pnp.runtime import freeze_long_lived_objects
 #: density preset of the task (``"min"``, ``"medium"``, ``"max"``) or ``"complicated"`` (ClutterGraspSlide-v1's
 #: hand-designed locking layouts; for ClutterGrasp-v1 its 3-7 object preset) or ``"hard"`` (the scene files of
 #: :func:`~maniskill_pnp.scenes.hard_scenes.hard_layout_files`: 24 generated tightly packed scenes, at least half of
-#: their objects locked, and the 8 locking layouts; episode i plays file i mod 32) or ``"hard_unseen"`` (the 24 scene
+#: their objects locked, and the 8 locking layouts; episode i plays file i mod 32) or ``"hard_unseen"`` (the 48 scene
 #: files of :func:`~maniskill_pnp.scenes.packed_families.unseen_scene_files`: tightly packed arrangements of families
 #: that no training draws) or ``"anywhere"`` (the 24 scene files of
 #: :func:`~maniskill_pnp.scenes.anywhere_scenes.anywhere_scene_files`: packed arrangements of every family anywhere in
