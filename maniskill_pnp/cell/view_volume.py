@@ -19,6 +19,16 @@ import numpy as np
 from maniskill_pnp.cell.workspace import WorkspaceSpec
 
 
+#: The eight corners of a box as picks from (lo, hi) per axis.
+_CORNER_PICKS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+
+
+def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``(..., 8, 3)``: the eight corners of each axis-aligned box ``[lo, hi]`` (``(..., 3)`` each)."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    return np.where(_CORNER_PICKS == 0, lo[..., None, :], hi[..., None, :])
+
+
 class ViewVolumes:
     """The view volume of the workspace box for every camera of a :class:`WorkspaceSpec`.
 
@@ -50,8 +60,7 @@ class ViewVolumes:
         lo, hi = np.atleast_2d(np.asarray(lo, dtype=np.float64)), np.atleast_2d(np.asarray(hi, dtype=np.float64))
         if lo.shape != hi.shape or lo.shape[-1] != 3:
             raise ValueError(f"lo and hi must both be (N, 3), got {lo.shape} and {hi.shape}")
-        pick = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])  # 8 corners from (lo, hi)
-        corners = np.where(pick[None, :, :] == 0, lo[:, None, :], hi[:, None, :])  # (N, 8, 3)
+        corners = box_corners(lo, hi)  # (N, 8, 3)
         out = np.ones(len(lo), dtype=bool)
         for faces in self.faces:
             side = corners @ faces[:, :3].T + faces[:, 3]  # (N, 8, F)

@@ -659,7 +659,7 @@ class ClutterGraspEnv(PrimitiveStepEnv):
         color, height, *fit = heightmaps_from_sensors(data, params, self.workspace, fit=self.workspace.fit_scale > 1)
         self._t_render, self._t_heightmap = t1 - t0, time.perf_counter() - t1
         self._height = height.cpu().numpy()  # (num_envs, H, W)
-        self._fit_height = fit[0].cpu().numpy() if fit else None  # (num_envs, kH, kW), with a fit heightmap only
+        self._fit_height = fit[0] if fit else None  # (num_envs, kH, kW), with a fit heightmap only
         obs = dict(color_heightmap=color, depth_heightmap=height)
         if fit:
             obs["fit_heightmap"] = fit[0]

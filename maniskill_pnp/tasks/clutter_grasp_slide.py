@@ -211,17 +211,21 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
         if self.rewards["freed_paid"]:
             snap["objects"] = self.clutter.workspace_objects(env)
         if self.rewards["fit_paid"]:
-            snap["fit"] = None if self._fit_height is None else self._fit_height[env]
+            snap["fit"] = self._fit_of(env)
         return snap
 
     @cached_property
     def _fit_test(self) -> HeightmapGraspFit:
         return HeightmapGraspFit.for_workspace(self.workspace)
 
-    def _graspable_regions(self, height: np.ndarray, fit: np.ndarray | None) -> int:
-        """Graspable regions of one heightmap (and its fit heightmap, where the task makes one)."""
+    def _fit_of(self, env: int) -> torch.Tensor | None:
+        """Env ``env``'s current fit heightmap, where the task makes one."""
+        return None if self._fit_height is None else self._fit_height[env]
+
+    def _graspable_regions(self, height: np.ndarray, fit: torch.Tensor | None) -> int:
+        """Graspable regions of one heightmap (read on its fit heightmap, where there is one)."""
         h = torch.as_tensor(height, dtype=torch.float32)[None]
-        f = None if fit is None else torch.as_tensor(fit, dtype=torch.float32)[None]
+        f = None if fit is None else fit[None].to(device=h.device, dtype=torch.float32)
         occupied = h > MATERIAL_HEIGHT
         return graspable_regions(self._fit_test(h, occupied, f)[0].any(dim=0), occupied[0])
 
@@ -266,8 +270,8 @@ class ClutterGraspSlideEnv(ClutterGraspEnv):
             outcome["slide_unlocked"] = self._unlocked(env, before["objects"])
             pays = min(outcome["slide_unlocked"], self.rewards["freed_paid"])
         if self.rewards["fit_paid"] and changed:
-            now = None if self._fit_height is None else self._fit_height[env]
-            gain = self._graspable_regions(self._height[env], now) - self._graspable_regions(before["height"], before["fit"])
+            gain = (self._graspable_regions(self._height[env], self._fit_of(env))
+                    - self._graspable_regions(before["height"], before["fit"]))
             outcome["slide_fit_gain"] = gain
             pays = min(max(gain, 0), self.rewards["fit_paid"])
         return Judgement(self.rewards["slide"] * pays, changed, outcome)

@@ -16,9 +16,7 @@ from __future__ import annotations
 import numpy as np
 import sapien
 
-#: The eight corners of a box as picks from (lo, hi) per axis.
-_CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-
+from maniskill_pnp.cell.view_volume import box_corners
 
 #: (mesh file, scale) -> its box: the robot's links are rebuilt from the same files at every reconfiguration.
 _FILE_BOXES: dict[tuple[str, tuple[float, ...]], tuple[np.ndarray, np.ndarray]] = {}
@@ -71,7 +69,7 @@ class RenderBoxes:
                 self._corners.append(None)
                 continue
             self._corners.append(np.concatenate([
-                _moved(np.where(_CORNERS == 0, lo, hi), s.local_pose) for s, (lo, hi) in zip(body.render_shapes, boxes)
+                _moved(box_corners(lo, hi), s.local_pose) for s, (lo, hi) in zip(body.render_shapes, boxes)
             ]))
 
     def world(self) -> tuple[np.ndarray, np.ndarray]:
