@@ -1,10 +1,10 @@
 """World bounding boxes of a sub-scene's render bodies, from local boxes found once.
 
-SAPIEN's ``RenderBodyComponent.get_global_aabb_fast`` moves each render shape's local box to the body's pose, but it
-finds that local box again from the shape's vertices after every pose change: about half a millisecond for a Panda
-link's visual mesh (tens of thousands of vertices), some 17 ms per clutter observation for the 34 bodies of a scene.
-:class:`RenderBoxes` finds each shape's local box once and moves its eight corners with the body's pose on every
-call: the same boxes (to float rounding; tested against SAPIEN's), at a few microseconds per body.
+SAPIEN's ``RenderBodyComponent.get_global_aabb_fast`` moves each render shape's local box to the body's pose; under
+cProfile its first call after a pose change took about half a millisecond for a Panda link's visual mesh (tens of
+thousands of vertices). :class:`RenderBoxes` finds each shape's local box once and moves its eight corners with the
+body's pose on every call: the same boxes (to float rounding; tested against SAPIEN's). Side by side, the render part
+of a clutter decision measured no faster than with SAPIEN's call (the work seems to move into the render).
 
 Example:
     >>> boxes = RenderBoxes(bodies)   # RenderBodyComponents of one sub-scene
