@@ -150,14 +150,19 @@ AGENT_FILES = sorted([*(CONFIGS.parent / "agents").glob("*.pt"), *BUNDLED_AGENTS
 @pytest.mark.parametrize("path", AGENT_FILES, ids=lambda p: p.name)
 def test_every_shipped_agent_loads(path):
     """Each exported agent's config loads, under the name it was trained as (a bundled agent as its preset, an
-    experiment's agent ``<recipe>-seed<S>.pt`` as the recipe it names), and its weights fit the network of that config
-    (no env is made)."""
+    experiment's agent ``<recipe>-seed<S>.pt`` as the recipe it names, or ``<recipe>-<variant>-seed<S>.pt`` where its
+    command line changed the recipe's fields), and its weights fit the network of that config (no env is made)."""
     payload = load_checkpoint(path)
     cfg = ClutterConfig.from_json(payload["config"])
     actor, acting, _ = load_policy(path, torch.device("cpu"))
     assert acting.run_name == cfg.run_name and actor.q_network.primitives == cfg.primitives
-    recipe = path.stem.rsplit("-seed", 1)[0]
+    stem, recipe = path.stem.rsplit("-seed", 1)[0], cfg.name or cfg.preset
+    assert stem == recipe or stem.startswith(f"{recipe}-"), (stem, recipe)
     assert cfg.run_name.startswith(f"{recipe}_") and cfg.preset in presets()
+    if stem != recipe:  # a variant: its command line changed some of the recipe's fields, not only seed and folder
+        base = ClutterConfig.from_preset(cfg.preset, seed=cfg.seed).to_json()
+        trained = cfg.to_json()
+        assert {k for k in trained if trained[k] != base[k]} - {"seed", "out", "name", *ACTING_FIELDS}, stem
     if recipe in RETIRED_PRESETS:  # trained with the preset the config file now repeats: only the command line differs
         assert (cfg.preset, cfg.name) == (RETIRED_PRESETS[recipe], recipe)
         trained, repeated = cfg.to_json(), ClutterConfig.from_file(CONFIGS / f"{recipe}.yaml").to_json()
