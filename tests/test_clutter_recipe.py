@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -18,9 +19,10 @@ from maniskill_pnp.agents.pixel.curves import load_actions, plot_training_curves
 from maniskill_pnp.agents.pixel.checkpoint import load_checkpoint
 from maniskill_pnp.agents.pixel.config import PRESETS_FILE, RETIRED_PRESETS, ClutterConfig, preset_descriptions, presets
 from maniskill_pnp.agents.pixel.evaluate import EpisodeTally
-from maniskill_pnp.agents.pixel.factories import make_env, make_model, make_policy
+from maniskill_pnp.agents.pixel.factories import make_action_mask, make_env, make_model, make_policy
 from maniskill_pnp.agents.pixel.metrics import ACTION_COLUMNS, OutcomeTracker
 from maniskill_pnp.agents.pixel.policy import make_pixel_policy
+from maniskill_pnp.agents.pixel.replay import NEXT_MASK_KEY, unpack_transition
 from maniskill_pnp.cell.pixel_action import PixelActionLayout
 
 LAYOUT = PixelActionLayout(1, 2, 8, 8)
@@ -403,14 +405,19 @@ def test_trailing_mean_by_hand():
         load_actions("/nonexistent/run")
 
 
-def test_fit_heightmap_training_keeps_the_next_states_fit_map_for_the_bootstrap(tmp_path):
+def test_fit_heightmap_training_keeps_the_next_states_fit_mask_for_the_bootstrap(tmp_path):
     """``--mask-fit-scale 2``: the env observes 64 px fit heightmaps beside the 32 px ones, the actor masks with them,
-    and the replay keeps the next state's (float16) for the loss's masked bootstrap."""
+    and the replay keeps the mask of each next state that the actor computed with them (as bits) for the loss's
+    masked bootstrap: fewer grasps than the material alone allows."""
     summary = _train(tmp_path, 2, "--mask-grasp-fit", "--mask-fit-scale", "2", preset="gs-cpu-small")
     assert summary["steps"] == 2 and summary["updates"] == 2
     run_dir = tmp_path / "gs-cpu-small_small_r2_px32_seed0"
     ckpt = load_checkpoint(run_dir / "checkpoint.pt")
-    assert ClutterConfig.from_json(ckpt["config"]).mask_fit_scale == 2
-    stored = TensorDict.load_memmap(run_dir / ckpt["replay"]["dir"] / "storage")["next", "fit_heightmap"]
-    assert stored.shape[1:] == (64, 64) and stored.dtype == torch.float16
-    assert stored[:2].amax(dim=(1, 2)).gt(0.01).all()  # the two next states' objects are on their fit maps
+    cfg = ClutterConfig.from_json(ckpt["config"])
+    assert cfg.mask_fit_scale == 2
+    stored = unpack_transition(TensorDict.load_memmap(run_dir / ckpt["replay"]["dir"] / "storage")[:2])
+    assert ("next", "fit_heightmap") not in stored.keys(True)
+    grasps = stored[NEXT_MASK_KEY].reshape(2, 3, -1)[:, 0]  # the grasp primitive's allowed actions
+    material = make_action_mask(replace(cfg, mask_grasp_fit=False, mask_fit_scale=1)).from_observation(stored["next", "observation"])
+    material = material.reshape(2, 3, -1)[:, 0]
+    assert (grasps <= material).all() and grasps.sum() < material.sum() and stored[NEXT_MASK_KEY].any(dim=1).all()

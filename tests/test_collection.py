@@ -16,7 +16,8 @@ from maniskill_pnp.agents.pixel.recipe import main as train_clutter
 from maniskill_pnp.agents.collection import (
     WORKER_SEED_STRIDE, check_collection, make_collector, resolve_backend, streams, sync_weights, worker_seeds,
 )
-from maniskill_pnp.agents.pixel.factories import make_env, make_model, make_policy, make_worker_env
+from maniskill_pnp.agents.pixel.factories import make_action_mask, make_env, make_model, make_policy, make_worker_env
+from maniskill_pnp.agents.pixel.replay import NEXT_MASK_KEY, NextMaskJoin
 from maniskill_pnp.agents.tabular.recipe import ConveyorConfig, load_qtable
 from maniskill_pnp.agents.tabular.recipe import main as train_conveyor
 from maniskill_pnp.bench.scale import COLLECTION_TASKS, collection_setup
@@ -80,6 +81,20 @@ def test_two_worker_processes_give_well_formed_batches(task):
         depth = first.get("depth_heightmap").reshape(2, -1)
         assert not torch.equal(depth[0], depth[1])
         assert depth.shape[1] == TINY["heightmap_size"] ** 2
+        assert_transitions_join_the_masks_their_actors_computed(task, batches)
+
+
+def assert_transitions_join_the_masks_their_actors_computed(task: str, batches: list) -> None:
+    """Each transition of the workers' batches goes into the replay with its next state's action mask: the one the
+    worker's actor computed acting there (a continuing episode's, found in the next batch), computed only for the
+    ends of episodes and the last batch; either way the mask of the next heightmap."""
+    mask = make_action_mask(ClutterConfig.from_preset("cpu-small" if task == "clutter" else "gs-cpu-small", **TINY))
+    computed = []
+    join = NextMaskJoin(lambda height, *fit: computed.append(len(height)) or mask(height, *fit), hold=2)
+    joined = [join.push(batches[0].reshape(-1)), join.push(batches[1].reshape(-1)), join.flush()]
+    joined = torch.cat([t for t in joined if t is not None])
+    assert joined.numel() == 4 and sum(computed) == 2 + int(batches[0].get(("next", "done")).sum())
+    assert torch.equal(joined[NEXT_MASK_KEY], mask.from_observation(joined["next", "observation"]))
 
 
 def test_conveyor_recipe_learns_from_two_worker_processes(tmp_path):

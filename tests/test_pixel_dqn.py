@@ -10,7 +10,8 @@ from torchrl.objectives import HardUpdate
 
 from maniskill_pnp.agents.pixel.fcn import MultiPrimitiveQNetwork, PixelQNetwork, make_trunk, padded_size
 from maniskill_pnp.agents.pixel.loss import PixelBCELoss, PixelDQNLoss
-from maniskill_pnp.agents.pixel.replay import make_pixel_replay, pack, pack_transition, unpack, unpack_transition
+from maniskill_pnp.agents.pixel.replay import (NEXT_MASK_KEY, make_pixel_replay, pack, pack_bits, pack_transition,
+                                               unpack, unpack_bits, unpack_transition)
 from maniskill_pnp.cell.pixel_action import PixelActionLayout
 
 H = W = 32
@@ -307,6 +308,27 @@ def test_replay_feeds_the_loss_and_takes_its_priorities(tmp_path, small_net):
     rb.update_tensordict_priority(batch)
     prio = rb.sampler._sum_tree[batch["index"].tolist()]  # stored priorities ((|td| + eps) ** alpha)
     assert torch.tensor(prio).gt(0).all()
+
+
+def test_a_stored_next_mask_replaces_the_bootstraps_own(tmp_path, small_net):
+    """A transition stored with its next state's action mask (as bits) gives the loss what computing the mask on its
+    next heightmap gives; a bad mask length is refused by name."""
+    layout = PixelActionLayout(1, R, H, W)
+    td = transitions(4, layout, seed=5, terminated=[False, False, True, False])
+    some = lambda obs: torch.rand(obs.shape[0], layout.size, generator=torch.Generator().manual_seed(9)) > 0.7  # noqa: E731
+    allowed = some(td["next", "observation"])
+    assert torch.equal(unpack_bits(pack_bits(allowed)), allowed)
+    rb = make_pixel_replay(10, tmp_path, batch_size=4)
+    rb.extend(pack_transition(td.clone().set(NEXT_MASK_KEY, allowed)))
+    stored = unpack_transition(rb[:4])
+    assert torch.equal(stored[NEXT_MASK_KEY], allowed) and ("next", "action_mask_bits") not in stored.keys(True)
+    computing = PixelDQNLoss(small_net, gamma=0.5, delay_value=False, action_mask=some)
+    reading = PixelDQNLoss(small_net, gamma=0.5, delay_value=False, action_mask=lambda obs: pytest.fail("computed"))
+    with torch.no_grad():
+        torch.testing.assert_close(reading(stored)["target_value"], computing(unpack_transition(rb[:4]).exclude(
+            NEXT_MASK_KEY))["target_value"], rtol=0, atol=0)
+    with pytest.raises(ValueError, match="7 actions does not split into bytes"):
+        pack_bits(torch.ones(2, 7, dtype=torch.bool))
 
 
 def test_train_mode_sgd_step_with_target_network():

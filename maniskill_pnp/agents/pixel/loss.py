@@ -17,6 +17,7 @@ key                         meaning                                             
 ``("next", "reward")``      reward of the step ``(*B,)`` or ``(*B, 1)``                            read
 ``("next", "terminated")``  true end of the MDP: no bootstrap (falls back to ``("next","done")``)  read (DQN)
 ``("next", "observation")`` next heightmap                                                        read (DQN)
+``("next", "action_mask")`` the next state's allowed actions (bool ``(*B, A)``), where stored        read (DQN)
 ``"priority_weight"``       importance weights from a prioritized buffer (used when present)      read
 ``"td_error"``              ``|target - Q(s, a)|`` (DQN) or ``|label - p|`` (BCE), for PER        written
 =========================== ===================================================================== =========
@@ -68,6 +69,7 @@ class _PixelLoss(LossModule):
         reward: NestedKey = "reward"
         done: NestedKey = "done"
         terminated: NestedKey = "terminated"
+        action_mask: NestedKey = "action_mask"
         priority: NestedKey = "td_error"
         priority_weight: NestedKey = "priority_weight"
 
@@ -142,7 +144,9 @@ class PixelDQNLoss(_PixelLoss):
         use_prioritized_weights: Multiply by ``"priority_weight"`` when the tensordict holds it.
         action_mask: Optional ``observation (N, 4, H, W) -> bool (N, *flat action)`` restricting the bootstrap's
             max (e.g. ``HeightmapActionMask(...).from_observation``), the same mask the actor acts under; where the
-            transitions hold ``("next", "fit_heightmap")`` it is called as ``action_mask(observation, fit)``.
+            transitions hold ``("next", "fit_heightmap")`` it is called as ``action_mask(observation, fit)``. Where
+            they hold the next state's mask itself (``("next", "action_mask")``, e.g. joined by
+            :class:`~maniskill_pnp.agents.pixel.replay.NextMaskJoin`), that is used and nothing is computed.
         executed_only: Compute the online ``Q(s, a)`` from the executed primitive and rotation only, when the
             network offers ``executed_values`` (the gradient is the same; BatchNorm's train-mode statistics come
             from the executed images). False: the full maps, as the module docstring describes.
@@ -184,14 +188,16 @@ class PixelDQNLoss(_PixelLoss):
         self.action_mask = action_mask
 
     @torch.no_grad()
-    def bootstrap(self, next_observation: torch.Tensor, next_fit: torch.Tensor | None = None) -> torch.Tensor:
+    def bootstrap(self, next_observation: torch.Tensor, next_fit: torch.Tensor | None = None,
+                  next_allowed: torch.Tensor | None = None) -> torch.Tensor:
         """``max_a' Q(s', a')`` per sample ``(N,)`` (double DQN: target value of the online argmax); ``next_fit``: the
-        next states' fit heightmaps ``(N, k·H, k·W)`` for the action mask."""
+        next states' fit heightmaps ``(N, k·H, k·W)`` for the action mask; ``next_allowed``: their action masks
+        ``(N, A)`` already computed (then ``action_mask`` is not called)."""
         n = next_observation.shape[0]
         target_params = self.target_value_network_params if self.delay_value else self.value_network_params.data
         next_q = self._maps(next_observation, target_params).reshape(n, -1)
-        allowed = None
-        if self.action_mask is not None:
+        allowed = None if next_allowed is None else next_allowed.reshape(n, -1)
+        if allowed is None and self.action_mask is not None:
             fit = () if next_fit is None else (next_fit.to(torch.float32),)
             allowed = self.action_mask(next_observation, *fit).reshape(n, -1)
         if not self.double_dqn:
@@ -219,7 +225,8 @@ class PixelDQNLoss(_PixelLoss):
         next_fit = tensordict.get(("next", FIT_KEY), default=None)
         if next_fit is not None:
             next_fit = next_fit.reshape(n, *next_fit.shape[tensordict.batch_dims:])
-        next_value = self.bootstrap(next_obs, next_fit).to(q.dtype)
+        next_allowed = tensordict.get(("next", keys.action_mask), default=None) if self.action_mask is not None else None
+        next_value = self.bootstrap(next_obs, next_fit, next_allowed).to(q.dtype)
         target = reward + self.gamma * next_value.masked_fill(terminated, 0.0)
 
         self._write_priority(tensordict, (target - q).abs())

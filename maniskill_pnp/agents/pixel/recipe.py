@@ -56,7 +56,8 @@ from maniskill_pnp.agents.pixel.config import ARCHITECTURE_FIELDS, ClutterConfig
 from maniskill_pnp.agents.pixel.factories import make_action_mask, make_env, make_model, make_policy, make_worker_env
 from maniskill_pnp.agents.pixel.loss import PixelBCELoss, PixelDQNLoss
 from maniskill_pnp.agents.pixel.metrics import OutcomeTracker, log_episodes, log_scalars
-from maniskill_pnp.agents.pixel.replay import make_pixel_replay, pack_transition, to_transitions, unpack_transition
+from maniskill_pnp.agents.pixel.replay import (NextMaskJoin, holds_next_masks, make_pixel_replay, pack_transition,
+                                               to_transitions, unpack_transition)
 from maniskill_pnp.agents.run_io import make_logger, require_logger, write_json
 from maniskill_pnp.progress import progress_bar
 from maniskill_pnp.runtime import resolve_device
@@ -93,6 +94,7 @@ def main(cfg: ClutterConfig) -> dict:
         env.close()
         return dict(summary, **counters, note="nothing left to train")
     monitor = Monitor(cfg, counters, env.base_env.primitive_names)
+    store = Transitions(cfg, replay)
     collector, env = start_collector(cfg, explore, env, env_seed, frames=cfg.steps - counters["steps"], device=device)
 
     # loop: collect one action per worker, store it, update, log, checkpoint; with a worker process the update on
@@ -104,7 +106,7 @@ def main(cfg: ClutterConfig) -> dict:
         counters["updates"] += overlap.wait()  # the model and the replay are the loop's again
         n = batch.numel()
         egreedy.step(n)
-        replay.extend(pack_transition(to_transitions(batch.reshape(-1))))
+        store.add(batch.reshape(-1))
         monitor.record(batch, counters)
         if overlap.enabled:
             sync_weights(collector, explore)  # the next batch is collected with the weights before this update
@@ -123,6 +125,7 @@ def main(cfg: ClutterConfig) -> dict:
         if logs:
             monitor.log(counters, egreedy.eps.item(), learner.last_loss, batch, wall)
         if saves:
+            store.flush()  # the checkpoint's replay holds every action counted
             write_checkpoint(run_dir, cfg=cfg, replay=replay, counters=counters, **state)
             monitor.logger.flush()  # the logs reach the disk with every checkpoint
         if done:
@@ -247,6 +250,36 @@ class Overlap:
             self.pool.shutdown(wait=True)
 
 
+class Transitions:
+    """Stores the collected frames in the replay as transitions. Where the actor acts under an action mask, each goes
+    in with its next state's mask (:class:`~maniskill_pnp.agents.pixel.replay.NextMaskJoin`: the one the actor
+    computed there, so the learner's bootstrap computes none), one batch later, unless the replay is still short of
+    ``learning_starts`` (then at once, so that learning starts at the action it would without); a run resumed from a
+    replay stored without next masks goes on without (its learner computes them)."""
+
+    def __init__(self, cfg: ClutterConfig, replay):
+        self.replay, self.learning_starts = replay, cfg.learning_starts
+        mask = make_action_mask(cfg) if cfg.loss == "dqn" else None
+        actions = len(cfg.primitives) * cfg.num_rotations * cfg.heightmap_size ** 2
+        joins = mask is not None and holds_next_masks(replay) and actions % 8 == 0  # bits stored 8 to a byte
+        self.join = NextMaskJoin(mask, hold=4 * cfg.workers) if joins else None
+
+    def add(self, frames) -> None:
+        """Store flat collector ``frames`` (and the earlier frames whose next masks they complete)."""
+        self._store(to_transitions(frames) if self.join is None else self.join.push(frames))
+        if len(self.replay) < self.learning_starts:
+            self.flush()
+
+    def flush(self) -> None:
+        """Store the frames still waiting for their next masks, with masks computed here."""
+        if self.join is not None:
+            self._store(self.join.flush())
+
+    def _store(self, transitions) -> None:
+        if transitions is not None:
+            self.replay.extend(pack_transition(transitions))
+
+
 class Monitor:
     """What a run shows and records of its actions: the running metrics and ``actions.csv``
     (:class:`~maniskill_pnp.agents.pixel.metrics.OutcomeTracker`), the logger (CSV or TensorBoard) and the progress
@@ -337,5 +370,5 @@ class Learner:
         return steps
 
 
-__all__ = ["Learner", "Monitor", "Overlap", "backend", "collection_summary", "crossed", "learner_device", "main",
+__all__ = ["Learner", "Monitor", "Overlap", "Transitions", "backend", "collection_summary", "crossed", "learner_device", "main",
            "make_run_replay", "overlapped", "resume_payload", "start_collector", "trained_enough"]

@@ -3,8 +3,10 @@
 A heightmap ``(..., 4, H, W)`` (RGB in 0..1, height in metres) is stored as ``"color"`` (uint8, ``(..., 3, H, W)``)
 and ``"height"`` (float16, ``(..., 1, H, W)``): 5 bytes per pixel instead of 16. :func:`pack` / :func:`unpack`
 convert one heightmap batch; :func:`pack_transition` / :func:`unpack_transition` convert the ``"observation"``
-and ``("next", "observation")`` entries of a transition tensordict; :func:`to_transitions` turns collector frames
-into those transitions.
+and ``("next", "observation")`` entries of a transition tensordict (and the next state's action mask, where there is
+one, to bits and back); :func:`to_transitions` turns collector frames into those transitions, and
+:class:`NextMaskJoin` gives each the action mask its actor computed in the next state, so that the learner's
+bootstrap need not compute it again.
 
 Example:
     >>> rb = make_pixel_replay(capacity=1000, scratch_dir=tmp, batch_size=8)  # doctest: +SKIP
@@ -24,12 +26,17 @@ from torchrl.data import LazyMemmapStorage, TensorDictPrioritizedReplayBuffer
 from maniskill_pnp.agents.pixel.policy import FIT_KEY, heightmap_input
 
 _OBS_KEYS = ("observation", ("next", "observation"))
+#: The next state's action mask of a transition, bool ``(*B, P*R*H*W)`` (the key the DQN loss reads), and the bits
+#: it is stored as (uint8 ``(*B, P*R*H*W / 8)``).
+NEXT_MASK_KEY = ("next", "action_mask")
+_NEXT_MASK_BITS = ("next", "action_mask_bits")
+_BIT_WEIGHTS = torch.tensor([128, 64, 32, 16, 8, 4, 2, 1], dtype=torch.uint8)
 
 
-def to_transitions(batch: TensorDictBase) -> TensorDict:
+def to_transitions(batch: TensorDictBase, keep_fit: bool = True) -> TensorDict:
     """Flat collector frames -> the transitions the loss reads (heightmap ``"observation"`` built from the env keys;
-    where the env observes fit heightmaps, the next state's as float16 ``("next", "fit_heightmap")``, for the
-    bootstrap's action mask)."""
+    with ``keep_fit``, where the env observes fit heightmaps, the next state's as float16 ``("next", "fit_heightmap")``,
+    for a bootstrap that computes the action mask itself)."""
     nxt = batch.get("next")
     n = batch.batch_size[0]
     out = TensorDict(
@@ -46,9 +53,84 @@ def to_transitions(batch: TensorDictBase) -> TensorDict:
         batch_size=[n],
     )
     fit = nxt.get(FIT_KEY, default=None)
-    if fit is not None:
+    if fit is not None and keep_fit:
         out.set(("next", FIT_KEY), fit.to(torch.float16))
     return out
+
+
+class NextMaskJoin:
+    """Joins each transition with the action mask of its next state: the mask the actor computed when it acted there
+    (the root ``"action_mask"`` of the frame whose heightmaps are the transition's next ones, in this batch or a later
+    one), so that the bootstrap over the allowed actions needs no mask of its own. The next state of an episode's last
+    transition is never acted in; its mask is computed with ``mask``, as is that of a transition that waited for more
+    than ``hold`` others.
+
+    Args:
+        mask: The action mask the actor acts under (e.g.
+            :class:`~maniskill_pnp.agents.pixel.mask.HeightmapActionMask`): ``(height, fit=None) -> bool (*B, A)``.
+        hold: Transitions at most waiting for their next frame (a synchronous collector's batch of ``n`` frames
+            needs ``n``; an asynchronous one's more).
+    """
+
+    def __init__(self, mask, hold: int):
+        if hold < 1:
+            raise ValueError(f"hold must be >= 1, got {hold!r}")
+        self.mask, self.hold = mask, hold
+        self.waiting: list[tuple[TensorDict, torch.Tensor, torch.Tensor, torch.Tensor | None]] = []
+
+    def push(self, frames: TensorDictBase) -> TensorDict | None:
+        """The transitions of flat collector ``frames`` and of the earlier ones that are complete now, each with its
+        :data:`NEXT_MASK_KEY` (None when none is)."""
+        if "action_mask" not in frames.keys():
+            raise KeyError("the frames hold no 'action_mask': the actor acts under no mask, so there is none to join")
+        transitions, nxt = to_transitions(frames, keep_fit=False), frames.get("next")
+        color, depth, masks = frames.get("color_heightmap"), frames.get("depth_heightmap"), frames.get("action_mask")
+        next_fit = nxt.get(FIT_KEY, default=None)
+        ready, computed = [], []
+        for j in range(frames.batch_size[0]):
+            for k, (t, c, d, _) in enumerate(self.waiting):  # frame j acts in the state a waiting transition ends in
+                if torch.equal(d, depth[j]) and torch.equal(c, color[j]):
+                    ready.append(t.set(NEXT_MASK_KEY, masks[j].reshape(-1)))
+                    del self.waiting[k]
+                    break
+            waiting = (transitions[j], nxt.get("color_heightmap")[j], nxt.get("depth_heightmap")[j],
+                       None if next_fit is None else next_fit[j])
+            (computed if bool(transitions[j]["next", "done"]) else self.waiting).append(waiting)
+        while len(self.waiting) > self.hold:
+            computed.append(self.waiting.pop(0))
+        return self._stack(ready + self._computed(computed))
+
+    def flush(self) -> TensorDict | None:
+        """Every waiting transition, its next mask computed (before a checkpoint, and at the end of a run)."""
+        waiting, self.waiting = self.waiting, []
+        return self._stack(self._computed(waiting))
+
+    def _computed(self, waiting: list) -> list[TensorDict]:
+        if not waiting:
+            return []
+        depth = torch.stack([d for _, _, d, _ in waiting]).to(torch.float32)
+        fits = [f for _, _, _, f in waiting]
+        fit = None if fits[0] is None else (torch.stack(fits).to(torch.float32),)
+        masks = self.mask(depth.reshape(len(waiting), *depth.shape[-2:]), *(fit or ()))
+        return [t.set(NEXT_MASK_KEY, m.reshape(-1)) for (t, *_), m in zip(waiting, masks)]
+
+    @staticmethod
+    def _stack(transitions: list[TensorDict]) -> TensorDict | None:
+        return torch.stack(transitions) if transitions else None
+
+
+def pack_bits(mask: torch.Tensor) -> torch.Tensor:
+    """uint8 ``(*B, A / 8)`` of bool ``(*B, A)``, 8 flags a byte (most significant first); ``A`` must be a multiple of 8."""
+    if mask.shape[-1] % 8:
+        raise ValueError(f"a mask of {mask.shape[-1]} actions does not split into bytes (a multiple of 8 is needed)")
+    grouped = mask.reshape(*mask.shape[:-1], -1, 8).to(torch.uint8)
+    return (grouped * _BIT_WEIGHTS.to(mask.device)).sum(dim=-1, dtype=torch.uint8)
+
+
+def unpack_bits(bits: torch.Tensor) -> torch.Tensor:
+    """Inverse of :func:`pack_bits`: bool ``(*B, 8 * bytes)``."""
+    flags = bits.unsqueeze(-1).bitwise_and(_BIT_WEIGHTS.to(bits.device)) != 0
+    return flags.reshape(*bits.shape[:-1], -1)
 
 
 def pack(obs: torch.Tensor) -> TensorDict:
@@ -70,12 +152,17 @@ def unpack(td: TensorDictBase) -> torch.Tensor:
 
 
 def pack_transition(td: TensorDictBase) -> TensorDictBase:
-    """A shallow copy of ``td`` whose ``"observation"`` and ``("next", "observation")`` (where present) are packed."""
+    """A shallow copy of ``td`` whose ``"observation"`` and ``("next", "observation")`` (where present) are packed,
+    and whose :data:`NEXT_MASK_KEY` (where present) is stored as bits."""
     out = td.copy()
     for key in _OBS_KEYS:
         obs = td.get(key, default=None)
         if obs is not None:
             out.set(key, pack(obs))
+    mask = td.get(NEXT_MASK_KEY, default=None)
+    if mask is not None:
+        out.set(_NEXT_MASK_BITS, pack_bits(mask))
+        del out[NEXT_MASK_KEY]
     return out
 
 
@@ -86,7 +173,17 @@ def unpack_transition(td: TensorDictBase) -> TensorDictBase:
         packed = td.get(key, default=None)
         if packed is not None:
             out.set(key, unpack(packed))
+    bits = td.get(_NEXT_MASK_BITS, default=None)
+    if bits is not None:
+        out.set(NEXT_MASK_KEY, unpack_bits(bits))
+        del out[_NEXT_MASK_BITS]
     return out
+
+
+def holds_next_masks(replay) -> bool:
+    """Whether ``replay`` may take transitions with their next masks: it is empty, or its transitions have them (a
+    run resumed from a replay stored without them goes on computing them in the learner)."""
+    return len(replay) == 0 or _NEXT_MASK_BITS in replay[:1].keys(include_nested=True)
 
 
 def make_pixel_replay(
