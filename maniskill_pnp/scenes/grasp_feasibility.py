@@ -229,12 +229,29 @@ class _Maps:
     hi: np.ndarray
     top: np.ndarray  # (nx, ny) highest surface: objects or the table
 
-    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Cell indices of world points and whether they are on the map."""
-        ij = np.rint((xy - self.origin) / self.step).astype(np.int64)
-        i, j = ij[..., 0], ij[..., 1]
+    def cells(self, ii: np.ndarray, jj: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell indices ``(N, M)`` of the cells ``(ii, jj)`` (``N`` each) moved by the integer cell ``offsets``
+        (``(M, 2)``), clipped to the map, and whether they are on it."""
+        i, j = ii[:, None] + offsets[None, :, 0], jj[:, None] + offsets[None, :, 1]
         inside = (i >= 0) & (i < self.top.shape[0]) & (j >= 0) & (j < self.top.shape[1])
         return np.clip(i, 0, self.top.shape[0] - 1), np.clip(j, 0, self.top.shape[1] - 1), inside
+
+
+def _cell_offsets(xy: np.ndarray, yaw: float, step: float) -> np.ndarray:
+    """Integer cell offsets ``(M, 2)`` of points ``xy`` (``(M, 2)``, the grasp frame: x along the pads, y the closing
+    direction) turned by the jaw orientation ``yaw``: a candidate on a cell centre and a point of its gripper fall in
+    cells that far apart, whatever the candidate."""
+    w, c = np.array([-math.sin(yaw), math.cos(yaw)]), np.array([math.cos(yaw), math.sin(yaw)])
+    return np.rint((xy[:, :1] * w + xy[:, 1:2] * c) / step).astype(np.int64)
+
+
+def _lowest_per_offset(offsets: np.ndarray, heights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct ``offsets`` and, for each, the lowest of the ``heights`` of the points that fall there (the
+    gripper strikes a cell's surface first with its lowest point over it)."""
+    unique, inverse = np.unique(offsets, axis=0, return_inverse=True)
+    lowest = np.full(len(unique), np.inf)
+    np.minimum.at(lowest, inverse.reshape(-1), heights)
+    return unique, lowest
 
 
 def _maps(layout, table_z: float, step: float) -> _Maps:
@@ -320,18 +337,16 @@ def grasp_feasibility(layout: Sequence[tuple[ObjectSpec, sapien.Pose]], workspac
         pts = gripper.points[gripper.points[:, 2] + tcp.min() < float(maps.top.max())] if len(tcp) else gripper.points
         feasible, example = 0, None
         for yaw in yaws:
-            w, c = np.array([-math.sin(yaw), math.cos(yaw)]), np.array([math.cos(yaw), math.sin(yaw)])
             ok = np.ones(len(pos), dtype=bool)
             if len(pts):
-                world = pos[:, None, :] + pts[None, :, :1] * w + pts[None, :, 1:2] * c
-                i, j, inside = maps.cells(world)
+                offsets, lowest = _lowest_per_offset(_cell_offsets(pts, yaw, resolution), pts[:, 2])
+                i, j, inside = maps.cells(ii, jj, offsets)
                 surface = np.where(inside, maps.top[i, j], workspace.table_z)
-                ok = ~np.any(surface > tcp[:, None] + pts[None, :, 2] + 1e-6, axis=1)
+                ok = ~np.any(surface - lowest[None, :] > tcp[:, None] + 1e-6, axis=1)
             if not ok.any():
                 continue
             sel = np.nonzero(ok)[0]
-            world = pos[sel, None, :] + closing[None, :, :1] * w + closing[None, :, 1:2] * c
-            i, j, inside = maps.cells(world)
+            i, j, inside = maps.cells(ii[sel], jj[sel], _cell_offsets(closing, yaw, resolution))
             band_lo = (tcp[sel] + gripper.pad_band[0])[:, None]
             band_hi = (tcp[sel] + gripper.pad_band[1])[:, None]
             overlap = np.minimum(maps.hi[k][i, j], band_hi) - np.maximum(maps.lo[k][i, j], band_lo)  # NaN: absent
