@@ -229,10 +229,18 @@ class _Maps:
     hi: np.ndarray
     top: np.ndarray  # (nx, ny) highest surface: objects or the table
 
-    def cells(self, ii: np.ndarray, jj: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell indices of world points and whether they are on the map."""
+        ij = np.rint((xy - self.origin) / self.step).astype(np.int64)
+        return self._clipped(ij[..., 0], ij[..., 1])
+
+    def moved(self, ii: np.ndarray, jj: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cell indices ``(N, M)`` of the cells ``(ii, jj)`` (``N`` each) moved by the integer cell ``offsets``
-        (``(M, 2)``), clipped to the map, and whether they are on it."""
-        i, j = ii[:, None] + offsets[None, :, 0], jj[:, None] + offsets[None, :, 1]
+        (``(M, 2)``), and whether they are on the map."""
+        return self._clipped(ii[:, None] + offsets[None, :, 0], jj[:, None] + offsets[None, :, 1])
+
+    def _clipped(self, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell indices clipped to the map, and whether they were on it."""
         inside = (i >= 0) & (i < self.top.shape[0]) & (j >= 0) & (j < self.top.shape[1])
         return np.clip(i, 0, self.top.shape[0] - 1), np.clip(j, 0, self.top.shape[1] - 1), inside
 
@@ -340,13 +348,13 @@ def grasp_feasibility(layout: Sequence[tuple[ObjectSpec, sapien.Pose]], workspac
             ok = np.ones(len(pos), dtype=bool)
             if len(pts):
                 offsets, lowest = _lowest_per_offset(_cell_offsets(pts, yaw, resolution), pts[:, 2])
-                i, j, inside = maps.cells(ii, jj, offsets)
+                i, j, inside = maps.moved(ii, jj, offsets)
                 surface = np.where(inside, maps.top[i, j], workspace.table_z)
                 ok = ~np.any(surface - lowest[None, :] > tcp[:, None] + 1e-6, axis=1)
             if not ok.any():
                 continue
             sel = np.nonzero(ok)[0]
-            i, j, inside = maps.cells(ii[sel], jj[sel], _cell_offsets(closing, yaw, resolution))
+            i, j, inside = maps.moved(ii[sel], jj[sel], _cell_offsets(closing, yaw, resolution))
             band_lo = (tcp[sel] + gripper.pad_band[0])[:, None]
             band_hi = (tcp[sel] + gripper.pad_band[1])[:, None]
             overlap = np.minimum(maps.hi[k][i, j], band_hi) - np.maximum(maps.lo[k][i, j], band_lo)  # NaN: absent
