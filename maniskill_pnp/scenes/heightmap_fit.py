@@ -103,8 +103,16 @@ class HeightmapGraspFit:
         spread = FRICTION * 2 * model.pad_half_width + step
         closing = closing.to(dev)
         fits = torch.zeros(n, self.num_rotations, h, w, dtype=torch.bool, device=dev)
+        if not len(tcp):
+            return fits
+        # a gripper cell this high above the fingertips clears the map's highest point (bare table beyond its edges)
+        # at the lowest fingertip height of the batch: it cannot decide a test, so it is left out
+        clears_all = float(fine.max().clamp(min=0.0) - tcp.min()) - self.fit_tolerance
         for rot, (index, lowest) in enumerate(descent):
-            clear = (around[:, index.to(dev)] - lowest.to(dev)).amax(dim=-1) <= tcp + self.fit_tolerance
+            risky = lowest < clears_all
+            index, lowest = index[risky].to(dev), lowest[risky].to(dev)
+            clear = (around[:, index] - lowest).amax(dim=-1) <= tcp + self.fit_tolerance if len(index) else \
+                torch.ones_like(tcp, dtype=torch.bool)
             material = around[:, closing[rot]] > band  # (M, 2 pads, 3 lines, S)
             met = material.any(dim=-1)
             first = material.to(torch.uint8).argmax(dim=-1).float() * (step / 2)  # travel to first contact
