@@ -26,7 +26,8 @@ is evaluated, on any device.
 
 With ``mask_empty`` (the default) the actor and the bootstrap range over the actions that can touch something:
 grasps where the heightmap shows material, slides that start on bare table and meet material within half their
-length (:class:`~maniskill_pnp.agents.pixel.mask.HeightmapActionMask`).
+length (:class:`~maniskill_pnp.agents.pixel.mask.HeightmapActionMask`). The bootstrap reads each transition's next
+mask from the replay: the one the actor computed acting in that state (:class:`Transitions`).
 
 Metrics of the ε-greedy behaviour (``docs/metrics.md``), logged as running values over the last ``success_window``
 actions: ``grasp_success`` (grasp attempts that lifted an object / grasp attempts), ``success_rate`` (objects
