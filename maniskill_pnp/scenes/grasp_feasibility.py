@@ -253,7 +253,7 @@ def _cell_offsets(xy: np.ndarray, yaw: float, step: float) -> np.ndarray:
     return np.rint((xy[:, :1] * w + xy[:, 1:2] * c) / step).astype(np.int64)
 
 
-def _lowest_per_offset(offsets: np.ndarray, heights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def lowest_per_offset(offsets: np.ndarray, heights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct ``offsets`` and, for each, the lowest of the ``heights`` of the points that fall there (the
     gripper strikes a cell's surface first with its lowest point over it)."""
     unique, inverse = np.unique(offsets, axis=0, return_inverse=True)
@@ -331,7 +331,7 @@ def grasp_feasibility(layout: Sequence[tuple[ObjectSpec, sapien.Pose]], workspac
     cx = np.linspace(-gripper.pad_half_width, gripper.pad_half_width, 9)
     cy = np.linspace(-gripper.pad_inner, gripper.pad_inner, max(3, int(2 * gripper.pad_inner / FINGER_PITCH) + 1))[1:-1]
     closing = np.stack(np.meshgrid(cx, cy, indexing="ij"), axis=-1).reshape(-1, 2)
-    out = []
+    out, under = [], {}
     for k in checked:
         spec = layout[k][0]
         visible = ~np.isnan(maps.hi[k]) & (maps.hi[k] >= maps.top - 1e-9)
@@ -342,12 +342,16 @@ def grasp_feasibility(layout: Sequence[tuple[ObjectSpec, sapien.Pose]], workspac
         pos = maps.origin + resolution * np.stack([ii, jj], axis=1)
         tcp = np.array([workspace.grasp_tcp_height(float(maps.top[i, j] - height_above)) for i, j in zip(ii, jj)])
         # gripper points that can reach below the highest surface near this object
-        pts = gripper.points[gripper.points[:, 2] + tcp.min() < float(maps.top.max())] if len(tcp) else gripper.points
         feasible, example = 0, None
         for yaw in yaws:
+            if yaw not in under:  # the gripper's cells at this orientation, the same for every object
+                under[yaw] = lowest_per_offset(_cell_offsets(gripper.points, yaw, resolution), gripper.points[:, 2])
+            offsets, lowest = under[yaw]
+            if len(tcp):  # only cells low enough to meet the highest surface near this object
+                near = lowest + tcp.min() < float(maps.top.max())
+                offsets, lowest = offsets[near], lowest[near]
             ok = np.ones(len(pos), dtype=bool)
-            if len(pts):
-                offsets, lowest = _lowest_per_offset(_cell_offsets(pts, yaw, resolution), pts[:, 2])
+            if len(offsets):
                 i, j, inside = maps.moved(ii, jj, offsets)
                 surface = np.where(inside, maps.top[i, j], workspace.table_z)
                 ok = ~np.any(surface - lowest[None, :] > tcp[:, None] + 1e-6, axis=1)
@@ -396,4 +400,4 @@ def format_report(name: str, grasps: Sequence[ObjectGrasps]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["GripperModel", "ObjectGrasps", "check_scene_file", "format_report", "grasp_feasibility", "panda_gripper"]
+__all__ = ["GripperModel", "ObjectGrasps", "check_scene_file", "format_report", "grasp_feasibility", "lowest_per_offset", "panda_gripper"]

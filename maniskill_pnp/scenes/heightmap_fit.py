@@ -35,7 +35,7 @@ import torch.nn.functional as F
 from scipy import ndimage
 
 from maniskill_pnp.cell.workspace import WorkspaceSpec
-from maniskill_pnp.scenes.grasp_feasibility import FRICTION, MIN_GRIP, panda_gripper
+from maniskill_pnp.scenes.grasp_feasibility import FRICTION, MIN_GRIP, lowest_per_offset, panda_gripper
 
 #: Default tolerance (m) of the fit test: a finger may come this close above a height of the map (its noise).
 FIT_TOLERANCE = 0.003
@@ -173,10 +173,7 @@ def gripper_cells(pixel_size: float, num_rotations: int, scale: int):
     under, closing = [], []
     for rot in range(num_rotations):
         yaw = rot * 2 * np.pi / num_rotations
-        keys, inverse = np.unique(cells(points[:, :2], yaw), axis=0, return_inverse=True)
-        lowest = np.full(len(keys), np.inf)
-        np.minimum.at(lowest, inverse.reshape(-1), points[:, 2])
-        under.append((keys, lowest))
+        under.append(lowest_per_offset(cells(points[:, :2], yaw), points[:, 2]))
         closing.append(cells(lines, yaw))
     closing = np.stack(closing)
     reach = int(max(max(np.abs(keys).max() for keys, _ in under), np.abs(closing).max()))
