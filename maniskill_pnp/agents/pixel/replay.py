@@ -76,25 +76,24 @@ class NextMaskJoin:
         if hold < 1:
             raise ValueError(f"hold must be >= 1, got {hold!r}")
         self.mask, self.hold = mask, hold
-        self.waiting: list[tuple[TensorDict, torch.Tensor, torch.Tensor, torch.Tensor | None]] = []
+        self.waiting: list[tuple[TensorDict, torch.Tensor | None]] = []  # (transition, its next fit heightmap)
 
     def push(self, frames: TensorDictBase) -> TensorDict | None:
         """The transitions of flat collector ``frames`` and of the earlier ones that are complete now, each with its
         :data:`NEXT_MASK_KEY` (None when none is)."""
         if "action_mask" not in frames.keys():
             raise KeyError("the frames hold no 'action_mask': the actor acts under no mask, so there is none to join")
-        transitions, nxt = to_transitions(frames, keep_fit=False), frames.get("next")
-        color, depth, masks = frames.get("color_heightmap"), frames.get("depth_heightmap"), frames.get("action_mask")
-        next_fit = nxt.get(FIT_KEY, default=None)
+        transitions, masks = to_transitions(frames, keep_fit=False), frames.get("action_mask")
+        next_fit = frames.get("next").get(FIT_KEY, default=None)
         ready, computed = [], []
         for j in range(frames.batch_size[0]):
-            for k, (t, c, d, _) in enumerate(self.waiting):  # frame j acts in the state a waiting transition ends in
-                if torch.equal(d, depth[j]) and torch.equal(c, color[j]):
+            acted_in = transitions[j]["observation"]
+            for k, (t, _) in enumerate(self.waiting):  # frame j acts in the state a waiting transition ends in
+                if torch.equal(t["next", "observation"], acted_in):
                     ready.append(t.set(NEXT_MASK_KEY, masks[j].reshape(-1)))
                     del self.waiting[k]
                     break
-            waiting = (transitions[j], nxt.get("color_heightmap")[j], nxt.get("depth_heightmap")[j],
-                       None if next_fit is None else next_fit[j])
+            waiting = (transitions[j], None if next_fit is None else next_fit[j])
             (computed if bool(transitions[j]["next", "done"]) else self.waiting).append(waiting)
         while len(self.waiting) > self.hold:
             computed.append(self.waiting.pop(0))
@@ -108,11 +107,11 @@ class NextMaskJoin:
     def _computed(self, waiting: list) -> list[TensorDict]:
         if not waiting:
             return []
-        depth = torch.stack([d for _, _, d, _ in waiting]).to(torch.float32)
-        fits = [f for _, _, _, f in waiting]
-        fit = None if fits[0] is None else (torch.stack(fits).to(torch.float32),)
-        masks = self.mask(depth.reshape(len(waiting), *depth.shape[-2:]), *(fit or ()))
-        return [t.set(NEXT_MASK_KEY, m.reshape(-1)) for (t, *_), m in zip(waiting, masks)]
+        height = torch.stack([t["next", "observation"][3] for t, _ in waiting])
+        fits = [f for _, f in waiting]
+        fit = () if fits[0] is None else (torch.stack(fits).to(torch.float32),)
+        masks = self.mask(height, *fit)
+        return [t.set(NEXT_MASK_KEY, m.reshape(-1)) for (t, _), m in zip(waiting, masks)]
 
     @staticmethod
     def _stack(transitions: list[TensorDict]) -> TensorDict | None:
