@@ -4,8 +4,8 @@ A run is described by one frozen dataclass, saved as ``config.json`` in its run 
 ``presets.yaml`` beside this module lists, per preset, a one-line description and the fields that differ from the
 dataclass defaults (which are the ``cpu-small`` preset). :meth:`ClutterConfig.from_preset` applies one, then any
 overrides. A config file (:meth:`ClutterConfig.from_file`, ``train-clutter --config FILE``) names a preset as its base
-and the fields it changes; the recipes of single experiments, presets until 2026-12 (:data:`RETIRED_PRESETS`), are
-such files in the repository's ``docs/configs/``.
+and the fields it changes; the recipes of single experiments, among them the presets until 2026-12
+(:data:`RETIRED_PRESETS`), are such files in the repository's ``docs/configs/``.
 
 Example:
     >>> cfg = ClutterConfig.from_preset("gs-cpu-small", seed=2)
